@@ -1,0 +1,62 @@
+//! One error type for the library; the CLI maps it to an exit code and one line of text.
+
+use std::path::{Path, PathBuf};
+
+/// Everything that can go wrong, split by who can fix it: bad input (exit 2) or a runtime failure (exit 1).
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// A file that cannot be read, decoded, or does not fit the render set.
+    #[error("{}: {msg}", path.display())]
+    File { path: PathBuf, msg: String },
+    /// A buffer a stage needs is missing or has the wrong shape.
+    #[error("buffer `{name}`: {msg}")]
+    Buffer { name: String, msg: String },
+    /// A pipeline file, a stage parameter, or a `--set` override is wrong; `key` names it.
+    #[error("{key}: {msg}")]
+    Config { key: String, msg: String },
+    /// The output cannot be written where the user asked.
+    #[error("cannot write {}: {msg}", path.display())]
+    Output { path: PathBuf, msg: String },
+    /// Any other bad usage (e.g. mismatched image sizes given to `eval`).
+    #[error("{0}")]
+    Usage(String),
+    /// Something failed that is not the user's input (I/O error mid-run, ...).
+    #[error("{0}")]
+    Runtime(String),
+}
+
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl Error {
+    pub fn file(path: impl AsRef<Path>, msg: impl std::fmt::Display) -> Self {
+        Error::File { path: path.as_ref().to_path_buf(), msg: msg.to_string() }
+    }
+
+    pub fn buffer(name: impl Into<String>, msg: impl std::fmt::Display) -> Self {
+        Error::Buffer { name: name.into(), msg: msg.to_string() }
+    }
+
+    pub fn config(key: impl Into<String>, msg: impl std::fmt::Display) -> Self {
+        Error::Config { key: key.into(), msg: msg.to_string() }
+    }
+
+    pub fn output(path: impl AsRef<Path>, msg: impl std::fmt::Display) -> Self {
+        Error::Output { path: path.as_ref().to_path_buf(), msg: msg.to_string() }
+    }
+
+    /// Process exit code, as FORMATS.md fixes it: 2 for bad usage or input, 1 for runtime failures.
+    pub fn exit_code(&self) -> i32 {
+        match self {
+            Error::Runtime(_) => 1,
+            _ => 2,
+        }
+    }
+
+    /// Prefix a config error's key with its context (e.g. the stage id), keeping other errors as they are.
+    pub fn in_context(self, prefix: &str) -> Self {
+        match self {
+            Error::Config { key, msg } => Error::Config { key: format!("{prefix}.{key}"), msg },
+            other => other,
+        }
+    }
+}

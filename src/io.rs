@@ -1,0 +1,276 @@
+//! Reading and writing images and render sets (FORMATS.md).
+//!
+//! EXR goes through the `exr` crate (any channel names, f16/f32/u32 samples); 8-bit PNG/JPEG colour
+//! through `image`, decoded from sRGB to linear. Writes go to a temporary file in the target folder
+//! that is renamed into place, so a failed run never leaves a half-written image.
+
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+
+use exr::prelude::{self as exrp, ReadChannels, ReadLayers, WritableImage};
+
+use crate::buffers::{Buffers, FEATURE_BUFFERS};
+use crate::error::{Error, Result};
+use crate::image::Image;
+
+/// Reads an image file as `channels` channels (3 = RGB, 1 = a single channel).
+///
+/// EXR channels are matched on the last dotted component of their names, so Blender-style
+/// `ViewLayer.Combined.R` works as well as `R`. One-channel reads accept `Y`, `Z`, `R`, or a file's only channel.
+pub fn read_image(path: &Path, channels: usize) -> Result<Image> {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    match ext.as_str() {
+        "exr" => read_exr(path, channels),
+        "png" | "jpg" | "jpeg" => read_ldr(path, channels),
+        _ => Err(Error::file(path, "unsupported image format (expected .exr, .png or .jpg)")),
+    }
+}
+
+fn read_exr(path: &Path, channels: usize) -> Result<Image> {
+    if !path.is_file() {
+        return Err(Error::file(path, "file not found"));
+    }
+    let image = exrp::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(path)
+        .map_err(|e| Error::file(path, format!("not a readable EXR file ({e})")))?;
+    let layer = image.layer_data;
+    let (w, h) = (layer.size.width(), layer.size.height());
+    let list = &layer.channel_data.list;
+    let short = |name: &str| -> String {
+        let full = name.to_string();
+        full.rsplit('.').next().unwrap_or(&full).to_string()
+    };
+    let find = |wanted: &[&str]| {
+        wanted.iter().find_map(|want| {
+            list.iter().find(|ch| short(&ch.name.to_string()).eq_ignore_ascii_case(want))
+        })
+    };
+    let picked: Vec<_> = if channels == 3 {
+        let r = find(&["R", "X"]);
+        let g = find(&["G", "Y"]);
+        let b = find(&["B", "Z"]);
+        match (r, g, b) {
+            (Some(r), Some(g), Some(b)) => vec![r, g, b],
+            _ if list.len() == 1 => vec![&list[0]; 3],
+            _ => {
+                let names: Vec<String> = list.iter().map(|c| c.name.to_string()).collect();
+                return Err(Error::file(path, format!("has no R, G, B channels (found: {})", names.join(", "))));
+            }
+        }
+    } else {
+        match find(&["Y", "Z", "R"]) {
+            Some(c) => vec![c],
+            None if list.len() == 1 => vec![&list[0]],
+            None => {
+                let names: Vec<String> = list.iter().map(|c| c.name.to_string()).collect();
+                return Err(Error::file(path, format!("has no Y, Z or R channel (found: {})", names.join(", "))));
+            }
+        }
+    };
+    let planes: Vec<Vec<f32>> = picked.iter().map(|c| c.sample_data.values_as_f32().collect()).collect();
+    let mut data = Vec::with_capacity(w * h * channels);
+    for i in 0..w * h {
+        for plane in &planes {
+            data.push(plane[i]);
+        }
+    }
+    Image::from_vec(w, h, channels, data).map_err(|e| Error::file(path, e))
+}
+
+fn read_ldr(path: &Path, channels: usize) -> Result<Image> {
+    let img = image::open(path).map_err(|e| Error::file(path, format!("cannot decode image ({e})")))?;
+    let rgb = img.to_rgb8();
+    let (w, h) = (rgb.width() as usize, rgb.height() as usize);
+    let lut: Vec<f32> = (0..256).map(|v| srgb_to_linear(v as f32 / 255.0)).collect();
+    let data: Vec<f32> = if channels == 3 {
+        rgb.as_raw().iter().map(|&v| lut[v as usize]).collect()
+    } else {
+        rgb.as_raw().chunks_exact(3).map(|p| lut[p[0] as usize]).collect()
+    };
+    Image::from_vec(w, h, channels, data).map_err(|e| Error::file(path, e))
+}
+
+/// The sRGB decoding curve (8-bit file values to linear light).
+pub fn srgb_to_linear(v: f32) -> f32 {
+    if v <= 0.04045 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Writes an EXR (float32, zip-compressed): RGB for 3 channels, `Y` for one.
+///
+/// The data goes to a temporary file next to `path`, which is renamed over `path` only once complete.
+pub fn write_exr(path: &Path, image: &Image) -> Result<()> {
+    let pending = PendingOutput::create(path)?;
+    pending.write_exr(image)
+}
+
+/// An output file reserved before the work starts: it proves the folder is writable early, and
+/// commits atomically (write to a temporary file, then rename) or vanishes if dropped.
+pub struct PendingOutput {
+    path: PathBuf,
+    tmp: tempfile::NamedTempFile,
+}
+
+impl PendingOutput {
+    pub fn create(path: &Path) -> Result<Self> {
+        let dir = match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        if path.is_dir() {
+            return Err(Error::output(path, "is a directory"));
+        }
+        if !dir.is_dir() {
+            return Err(Error::output(path, format!("folder {} does not exist", dir.display())));
+        }
+        let tmp = tempfile::Builder::new()
+            .prefix(".gsid-")
+            .suffix(".tmp")
+            .tempfile_in(&dir)
+            .map_err(|e| Error::output(path, e))?;
+        Ok(PendingOutput { path: path.to_path_buf(), tmp })
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Writes `image` as EXR and renames it into place.
+    pub fn write_exr(self, image: &Image) -> Result<()> {
+        let (w, h, c) = (image.width(), image.height(), image.channels());
+        let names: &[&str] = match c {
+            1 => &["Y"],
+            3 => &["R", "G", "B"],
+            4 => &["R", "G", "B", "A"],
+            _ => return Err(Error::output(&self.path, format!("cannot write a {c}-channel image as EXR"))),
+        };
+        let channels: exrp::SmallVec<[exrp::AnyChannel<exrp::FlatSamples>; 4]> = names
+            .iter()
+            .enumerate()
+            .map(|(ci, name)| {
+                let plane: Vec<f32> = image.data().iter().skip(ci).step_by(c).copied().collect();
+                exrp::AnyChannel::new(*name, exrp::FlatSamples::F32(plane))
+            })
+            .collect();
+        let encoding = exrp::Encoding {
+            compression: exrp::Compression::ZIP16,
+            blocks: exrp::Blocks::ScanLines,
+            line_order: exrp::LineOrder::Increasing,
+        };
+        let layer = exrp::Layer::new(
+            (w, h),
+            exrp::LayerAttributes::default(),
+            encoding,
+            exrp::AnyChannels::sort(channels),
+        );
+        let out = exrp::Image::from_layer(layer);
+        {
+            let file = self.tmp.as_file().try_clone().map_err(|e| Error::output(&self.path, e))?;
+            let mut writer = BufWriter::new(file);
+            out.write()
+                .to_buffered(&mut writer)
+                .map_err(|e| Error::output(&self.path, e))?;
+            use std::io::Write;
+            writer.flush().map_err(|e| Error::output(&self.path, e))?;
+        }
+        self.commit()
+    }
+
+    /// Writes arbitrary bytes (CSV, JSON, PNG) and renames into place.
+    pub fn write_bytes(self, bytes: &[u8]) -> Result<()> {
+        use std::io::Write;
+        let mut file = self.tmp.as_file();
+        file.write_all(bytes).map_err(|e| Error::output(&self.path, e))?;
+        self.commit()
+    }
+
+    fn commit(self) -> Result<()> {
+        let path = self.path;
+        self.tmp
+            .persist(&path)
+            .map_err(|e| Error::output(&path, e.error))?;
+        Ok(())
+    }
+}
+
+/// A render set as loaded from disk: the buffers, the files they came from, and notes for the user.
+pub struct RenderSet {
+    pub dir: PathBuf,
+    pub buffers: Buffers,
+    /// Path of each loaded buffer, by name.
+    pub files: Vec<(String, PathBuf)>,
+    /// The reference image path, if one was found (in the folder or one level up).
+    pub reference: Option<PathBuf>,
+    /// One line per thing worth telling the user (missing buffers, LDR input).
+    pub notes: Vec<String>,
+}
+
+/// Finds a buffer file `name.{exr,png,jpg}` in `dir`.
+fn find_buffer_file(dir: &Path, name: &str) -> Option<PathBuf> {
+    ["exr", "png", "jpg", "jpeg"]
+        .iter()
+        .map(|ext| dir.join(format!("{name}.{ext}")))
+        .find(|p| p.is_file())
+}
+
+/// Loads a render set folder: `color` is required, feature buffers are optional.
+pub fn load_render_set(dir: &Path) -> Result<RenderSet> {
+    if !dir.is_dir() {
+        return Err(Error::file(dir, "is not a render set folder"));
+    }
+    let mut notes = Vec::new();
+    let mut files = Vec::new();
+    let mut buffers = Buffers::new();
+    let color_path = find_buffer_file(dir, "color")
+        .ok_or_else(|| Error::file(dir.join("color.exr"), "required buffer `color` not found"))?;
+    if color_path.extension().is_some_and(|e| e != "exr") {
+        notes.push(format!("{}: 8-bit colour is not HDR; highlights are clipped", color_path.display()));
+    }
+    let color = read_image(&color_path, 3)?;
+    let (w, h) = color.dims();
+    buffers.insert("color", color)?;
+    files.push(("color".to_string(), color_path.clone()));
+    let mut missing = Vec::new();
+    for (name, channels) in FEATURE_BUFFERS {
+        let Some(path) = find_buffer_file(dir, name) else {
+            missing.push(name);
+            continue;
+        };
+        let img = read_image(&path, channels)?;
+        if img.dims() != (w, h) {
+            return Err(Error::file(
+                &path,
+                format!(
+                    "is {}x{} but {} is {w}x{h}; all buffers of a render set must have one size",
+                    img.width(),
+                    img.height(),
+                    color_path.display()
+                ),
+            ));
+        }
+        buffers.insert(name, img)?;
+        files.push((name.to_string(), path));
+    }
+    if !missing.is_empty() {
+        notes.push(format!("missing buffers (their features are off): {}", missing.join(", ")));
+    }
+    let reference = find_reference(dir);
+    Ok(RenderSet { dir: dir.to_path_buf(), buffers, files, reference, notes })
+}
+
+/// The converged reference of a render set: `reference.exr` in the folder or one level up.
+pub fn find_reference(dir: &Path) -> Option<PathBuf> {
+    let here = dir.join("reference.exr");
+    if here.is_file() {
+        return Some(here);
+    }
+    dir.parent().map(|p| p.join("reference.exr")).filter(|p| p.is_file())
+}
