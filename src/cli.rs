@@ -1,13 +1,21 @@
 //! Command-line interface (clap derive). Thin: parse, call the library, print one line per error.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use clap::{Parser, Subcommand};
 
 use crate::error::{Error, Result};
+use crate::io::{self, PendingOutput};
+use crate::metrics;
+use crate::pipeline::{PipelineSpec, BUILTIN, DEFAULT_PIPELINE};
 
 #[derive(Parser, Debug)]
-#[command(name = "gsid", version, about = "Feature-guided stochastic denoising for path-traced renders")]
+#[command(
+    name = "gsid",
+    version,
+    about = "Feature-guided stochastic denoising for path-traced renders"
+)]
 pub struct Cli {
     /// Silence the progress bar and notes on stderr.
     #[arg(long, short, global = true)]
@@ -26,25 +34,61 @@ pub enum Command {
     Pipelines,
 }
 
-#[derive(clap::Args, Debug)]
-pub struct DenoiseArgs {
-    /// Render set folder.
-    pub dir: PathBuf,
+/// Options shared by every command that runs a pipeline.
+#[derive(clap::Args, Debug, Clone)]
+pub struct RunOptions {
     /// Pipeline name (see `gsid pipelines`) or a pipeline TOML file.
-    #[arg(long, short)]
-    pub pipeline: Option<String>,
-    /// Output EXR path.
-    #[arg(long, short)]
-    pub output: PathBuf,
-    /// Seed for every random choice.
+    #[arg(long, short, default_value = DEFAULT_PIPELINE)]
+    pub pipeline: String,
+    /// Seed for every random choice: same inputs, pipeline and seed give the same bits on any thread count.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
-    /// Override a pipeline parameter, e.g. `--set gsid.walks=40`.
+    /// Override a pipeline parameter, e.g. `--set gsid.walks=40` (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub sets: Vec<String>,
+}
+
+impl RunOptions {
+    /// The pipeline with the overrides applied, as a spec (not yet built).
+    pub fn spec(&self) -> Result<PipelineSpec> {
+        let mut spec = PipelineSpec::resolve(&self.pipeline)?;
+        for s in &self.sets {
+            spec.apply_set(s)?;
+        }
+        Ok(spec)
+    }
+
+    /// Runs `f` on a thread pool of the requested size.
+    pub fn in_pool<T: Send>(&self, f: impl FnOnce() -> T + Send) -> Result<T> {
+        match self.threads {
+            None => Ok(f()),
+            Some(0) => Err(Error::config("--threads", "must be at least 1")),
+            Some(n) => {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(n)
+                    .build()
+                    .map_err(|e| Error::Runtime(format!("cannot start {n} threads: {e}")))?;
+                Ok(pool.install(f))
+            }
+        }
+    }
+}
+
+#[derive(clap::Args, Debug)]
+pub struct DenoiseArgs {
+    /// Render set folder.
+    pub dir: PathBuf,
+    #[command(flatten)]
+    pub run: RunOptions,
+    /// Output EXR path (written atomically; never an input file).
+    #[arg(long, short)]
+    pub output: PathBuf,
+    /// Also save an intermediate buffer, e.g. `--save-buffer outlier_mask=mask.exr` (repeatable).
+    #[arg(long = "save-buffer", value_name = "NAME=FILE.exr")]
+    pub save_buffers: Vec<String>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -80,8 +124,128 @@ pub fn main() -> i32 {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Denoise(_) | Command::Eval(_) | Command::Pipelines => {
-            Err(Error::Runtime("command under construction".into()))
+        Command::Denoise(args) => denoise(&args, cli.quiet),
+        Command::Eval(args) => eval(&args),
+        Command::Pipelines => {
+            list_pipelines();
+            Ok(())
+        }
+    }
+}
+
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => false,
+    }
+}
+
+fn denoise(args: &DenoiseArgs, quiet: bool) -> Result<()> {
+    let start = Instant::now();
+    let pipeline = args.run.spec()?.build()?;
+    let mut saves = Vec::new();
+    for s in &args.save_buffers {
+        let (name, path) = s
+            .split_once('=')
+            .ok_or_else(|| Error::config("--save-buffer", format!("`{s}` is not NAME=FILE.exr")))?;
+        saves.push((name.to_string(), PathBuf::from(path)));
+    }
+    let mut set = io::load_render_set(&args.dir)?;
+    let all_outputs = std::iter::once(&args.output).chain(saves.iter().map(|(_, p)| p));
+    for out in all_outputs {
+        if let Some((name, _)) = set.files.iter().find(|(_, f)| same_file(f, out)) {
+            return Err(Error::output(
+                out,
+                format!("is the input buffer `{name}`; refusing to overwrite an input"),
+            ));
+        }
+    }
+    // Reserve every output before the work, so an unwritable path fails fast and nothing half-written remains.
+    let pending = PendingOutput::create(&args.output)?;
+    let pending_saves = saves
+        .iter()
+        .map(|(n, p)| Ok((n.clone(), PendingOutput::create(p)?)))
+        .collect::<Result<Vec<_>>>()?;
+    if !quiet {
+        for line in &set.notes {
+            eprintln!("gsid: {line}");
+        }
+    }
+    let (w, h) = set.buffers.dims().unwrap_or((0, 0));
+    let seed = args.run.seed;
+    let (out, report) = args
+        .run
+        .in_pool(|| pipeline.run(&mut set.buffers, seed, !quiet))??;
+    for (name, pending) in pending_saves {
+        let buf = set.buffers.get(&name).ok_or_else(|| {
+            Error::buffer(
+                &name,
+                format!(
+                    "was asked for by --save-buffer but pipeline {} has no such buffer",
+                    pipeline.name
+                ),
+            )
+        })?;
+        pending.write_exr(buf)?;
+    }
+    pending.write_exr(&out)?;
+    if !quiet {
+        for line in &report.notes {
+            eprintln!("gsid: {line}");
+        }
+        let steps = report.walk_steps();
+        eprintln!(
+            "gsid: {} ({w}x{h}) → {} in {:.3} s (pipeline {:.3} s, {:.1} M walk steps)",
+            args.dir.display(),
+            args.output.display(),
+            start.elapsed().as_secs_f64(),
+            report.seconds,
+            steps as f64 / 1e6
+        );
+    }
+    Ok(())
+}
+
+fn eval(args: &EvalArgs) -> Result<()> {
+    let image = io::read_image(&args.image, 3)?;
+    let reference = io::read_image(&args.reference, 3)?;
+    if image.dims() != reference.dims() {
+        return Err(Error::file(
+            &args.image,
+            format!(
+                "is {}x{} but reference {} is {}x{}",
+                image.width(),
+                image.height(),
+                args.reference.display(),
+                reference.width(),
+                reference.height()
+            ),
+        ));
+    }
+    let s = metrics::score(&image, &reference)?;
+    if args.json {
+        let json = serde_json::json!({
+            "image": args.image.display().to_string(),
+            "reference": args.reference.display().to_string(),
+            "ssim": s.ssim,
+            "psnr": if s.psnr.is_finite() { serde_json::json!(s.psnr) } else { serde_json::json!("inf") },
+            "relmse": s.relmse,
+        });
+        println!("{json}");
+    } else {
+        println!(
+            "SSIM {:.4}  PSNR {:.2} dB  relMSE {:.5}",
+            s.ssim, s.psnr, s.relmse
+        );
+    }
+    Ok(())
+}
+
+fn list_pipelines() {
+    for (name, _) in BUILTIN {
+        match PipelineSpec::resolve(name) {
+            Ok(spec) => println!("{name:<14} {}", spec.description),
+            Err(e) => println!("{name:<14} (invalid: {e})"),
         }
     }
 }

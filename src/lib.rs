@@ -5,8 +5,15 @@
 pub mod buffers;
 pub mod cli;
 pub mod error;
+pub mod features;
 pub mod image;
 pub mod io;
+pub mod metrics;
+pub mod pipeline;
+pub mod progress;
+pub mod sanitize;
+pub mod stages;
+pub mod walk;
 
 pub use crate::buffers::Buffers;
 pub use crate::error::{Error, Result};

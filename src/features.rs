@@ -1,0 +1,381 @@
+//! Per-pixel feature vectors and the pixel difference d(i, j) of ALGORITHM.md §2.
+//!
+//! Each pixel's features are packed into one 16-float (64-byte) record with the weights already
+//! folded in, so the hot loop computes d(i, j) from two cache lines and no configuration:
+//!
+//! | lanes | content                  | scaling                      | enters d as          |
+//! |-------|--------------------------|------------------------------|----------------------|
+//! | 0..3  | tone-mapped colour T(c)  | × W1                         | Euclidean norm       |
+//! | 3..6  | albedo                   | × W2                         | Euclidean norm       |
+//! | 6..9  | unit normal              | × √W3 / 2                    | squared norm         |
+//! | 9..12 | diffuse/refl./refr.      | × W4, W5, W6                 | sum of abs diffs     |
+//! | 12    | shadow                   | × W7                         | abs diff             |
+//! | 13    | depth (unscaled)         | W8 applied in `distance`     | relative abs diff    |
+//!
+//! The normal term uses ‖n_i − n_j‖²/4, which equals (1 − n_i·n_j)/2 for unit normals and also
+//! behaves for "unknown" (zero) normals: two unknowns are equal, unknown vs known differs by 1/4.
+
+use serde::{Deserialize, Serialize};
+
+use crate::buffers::Buffers;
+use crate::error::{Error, Result};
+use crate::image::Image;
+
+/// Floats per pixel record (padded to a cache line).
+pub const FEATURE_LANES: usize = 16;
+/// Guards the relative depth difference against two zero depths.
+const DEPTH_EPS: f32 = 1e-8;
+
+/// The eight feature weights W1..W8 (ALGORITHM.md §2). Zero switches a feature off (and skips its buffer).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Weights {
+    /// F1: noisy colour, through the tone curve.
+    pub color: f32,
+    /// F2: true colour (albedo).
+    pub albedo: f32,
+    /// F3: shading normal.
+    pub normal: f32,
+    /// F4: diffuse material weight.
+    pub diffuse: f32,
+    /// F5: reflective material weight.
+    pub reflective: f32,
+    /// F6: refractive material weight.
+    pub refractive: f32,
+    /// F7: shadow (light exposure).
+    pub shadow: f32,
+    /// F8: relative depth.
+    pub depth: f32,
+}
+
+impl Default for Weights {
+    /// The 2019 report's weights.
+    fn default() -> Self {
+        Weights {
+            color: 2.0,
+            albedo: 2.0,
+            normal: 3.0,
+            diffuse: 1.0,
+            reflective: 2.0,
+            refractive: 1.0,
+            shadow: 0.5,
+            depth: 2.0,
+        }
+    }
+}
+
+impl Weights {
+    /// SID: colour only.
+    pub fn color_only() -> Self {
+        Weights {
+            color: 1.0,
+            albedo: 0.0,
+            normal: 0.0,
+            diffuse: 0.0,
+            reflective: 0.0,
+            refractive: 0.0,
+            shadow: 0.0,
+            depth: 0.0,
+        }
+    }
+
+    pub fn as_array(&self) -> [f32; 8] {
+        [
+            self.color,
+            self.albedo,
+            self.normal,
+            self.diffuse,
+            self.reflective,
+            self.refractive,
+            self.shadow,
+            self.depth,
+        ]
+    }
+
+    pub const NAMES: [&'static str; 8] = [
+        "color",
+        "albedo",
+        "normal",
+        "diffuse",
+        "reflective",
+        "refractive",
+        "shadow",
+        "depth",
+    ];
+
+    /// Sets weight `index` (0..8, in `NAMES` order).
+    pub fn set(&mut self, index: usize, value: f32) {
+        let slot = match index {
+            0 => &mut self.color,
+            1 => &mut self.albedo,
+            2 => &mut self.normal,
+            3 => &mut self.diffuse,
+            4 => &mut self.reflective,
+            5 => &mut self.refractive,
+            6 => &mut self.shadow,
+            _ => &mut self.depth,
+        };
+        *slot = value;
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        for (name, w) in Self::NAMES.iter().zip(self.as_array()) {
+            if !(0.0..=1000.0).contains(&w) {
+                return Err(Error::config(
+                    format!("weights.{name}"),
+                    format!("is {w}, allowed range is 0 to 1000"),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The buffer each weight needs.
+const WEIGHT_BUFFER: [&str; 8] = [
+    "color", "albedo", "normal", "material", "material", "material", "shadow", "depth",
+];
+
+/// The robust tone curve T of feature F1 (averaging always uses linear colour).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Tone {
+    /// x / (1 + x): bounded, compresses highlights and fireflies.
+    Reinhard,
+    /// ln(1 + x): unbounded but slow-growing.
+    Log1p,
+    /// x itself: only for LDR input.
+    Linear,
+}
+
+impl Tone {
+    #[inline]
+    pub fn apply(self, x: f32) -> f32 {
+        match self {
+            Tone::Reinhard => x / (1.0 + x),
+            Tone::Log1p => x.ln_1p(),
+            Tone::Linear => x,
+        }
+    }
+}
+
+/// Packed per-pixel features, ready for `distance`.
+#[derive(Clone, Debug)]
+pub struct Features {
+    width: usize,
+    height: usize,
+    records: Vec<[f32; FEATURE_LANES]>,
+    depth_weight: f32,
+}
+
+impl Features {
+    /// Packs the features of `color` and the feature buffers in `buffers`, weighted by `weights`.
+    ///
+    /// Returns the features and the names of weighted features switched off because their buffer is missing.
+    pub fn build(
+        color: &Image,
+        buffers: &Buffers,
+        weights: &Weights,
+        tone: Tone,
+        exposure: f32,
+    ) -> Result<(Features, Vec<&'static str>)> {
+        let (w, h) = color.dims();
+        let n = w * h;
+        let mut effective = *weights;
+        let mut off = Vec::new();
+        for (i, buffer) in WEIGHT_BUFFER.iter().enumerate().skip(1) {
+            if weights.as_array()[i] > 0.0 && !buffers.contains(buffer) {
+                effective.set(i, 0.0);
+                off.push(Weights::NAMES[i]);
+            }
+        }
+        let wt = effective;
+        let mut records = vec![[0.0f32; FEATURE_LANES]; n];
+        for (i, r) in records.iter_mut().enumerate() {
+            let c = color.pixel(i);
+            for k in 0..3 {
+                r[k] = wt.color * tone.apply(exposure * c[k]);
+            }
+        }
+        let fetch = |name: &str, channels: usize| -> Result<Option<&Image>> {
+            let img = buffers.get_channels(name, channels)?;
+            if let Some(img) = img {
+                if img.dims() != (w, h) {
+                    return Err(Error::buffer(
+                        name,
+                        "does not match the colour buffer's size",
+                    ));
+                }
+            }
+            Ok(img)
+        };
+        if wt.albedo > 0.0 {
+            if let Some(a) = fetch("albedo", 3)? {
+                for (i, r) in records.iter_mut().enumerate() {
+                    let p = a.pixel(i);
+                    r[3..6].copy_from_slice(&[
+                        wt.albedo * p[0],
+                        wt.albedo * p[1],
+                        wt.albedo * p[2],
+                    ]);
+                }
+            }
+        }
+        if wt.normal > 0.0 {
+            if let Some(nm) = fetch("normal", 3)? {
+                let s = wt.normal.sqrt() * 0.5;
+                for (i, r) in records.iter_mut().enumerate() {
+                    let p = nm.pixel(i);
+                    r[6..9].copy_from_slice(&[s * p[0], s * p[1], s * p[2]]);
+                }
+            }
+        }
+        if wt.diffuse > 0.0 || wt.reflective > 0.0 || wt.refractive > 0.0 {
+            if let Some(m) = fetch("material", 3)? {
+                for (i, r) in records.iter_mut().enumerate() {
+                    let p = m.pixel(i);
+                    r[9..12].copy_from_slice(&[
+                        wt.diffuse * p[0],
+                        wt.reflective * p[1],
+                        wt.refractive * p[2],
+                    ]);
+                }
+            }
+        }
+        if wt.shadow > 0.0 {
+            if let Some(s) = fetch("shadow", 1)? {
+                for (i, r) in records.iter_mut().enumerate() {
+                    r[12] = wt.shadow * s.pixel(i)[0];
+                }
+            }
+        }
+        if wt.depth > 0.0 {
+            if let Some(z) = fetch("depth", 1)? {
+                for (i, r) in records.iter_mut().enumerate() {
+                    r[13] = z.pixel(i)[0];
+                }
+            }
+        }
+        Ok((
+            Features {
+                width: w,
+                height: h,
+                records,
+                depth_weight: wt.depth,
+            },
+            off,
+        ))
+    }
+
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    #[inline]
+    pub fn record(&self, i: usize) -> &[f32; FEATURE_LANES] {
+        &self.records[i]
+    }
+
+    /// d(i, j) of ALGORITHM.md §2 between pixels `i` and `j` (row-major indices).
+    #[inline]
+    pub fn distance(&self, i: usize, j: usize) -> f32 {
+        distance(&self.records[i], &self.records[j], self.depth_weight)
+    }
+}
+
+/// d between two packed records; symmetric bit for bit (so d(i, j) == d(j, i) exactly).
+#[inline]
+pub fn distance(a: &[f32; FEATURE_LANES], b: &[f32; FEATURE_LANES], depth_weight: f32) -> f32 {
+    let mut diff = [0.0f32; FEATURE_LANES];
+    for k in 0..FEATURE_LANES {
+        diff[k] = a[k] - b[k];
+    }
+    let sq = |k: usize| diff[k] * diff[k];
+    let color = (sq(0) + sq(1) + sq(2)).sqrt();
+    let albedo = (sq(3) + sq(4) + sq(5)).sqrt();
+    let normal = sq(6) + sq(7) + sq(8);
+    let material = diff[9].abs() + diff[10].abs() + diff[11].abs() + diff[12].abs();
+    let depth = if depth_weight > 0.0 {
+        depth_weight * diff[13].abs() / a[13].max(b[13]).max(DEPTH_EPS)
+    } else {
+        0.0
+    };
+    color + albedo + normal + material + depth
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn set_with(color: Vec<f32>, w: usize, h: usize) -> (Image, Buffers) {
+        let img = Image::from_vec(w, h, 3, color).unwrap();
+        let mut b = Buffers::new();
+        b.insert("color", img.clone()).unwrap();
+        (img, b)
+    }
+
+    #[test]
+    fn distance_matches_the_formula() {
+        let (color, mut b) = set_with(vec![0.0, 0.0, 0.0, 1.0, 1.0, 1.0], 2, 1);
+        b.insert(
+            "albedo",
+            Image::from_vec(2, 1, 3, vec![0.1, 0.2, 0.3, 0.4, 0.2, 0.3]).unwrap(),
+        )
+        .unwrap();
+        b.insert(
+            "normal",
+            Image::from_vec(2, 1, 3, vec![0.0, 0.0, 1.0, 0.0, 1.0, 0.0]).unwrap(),
+        )
+        .unwrap();
+        b.insert(
+            "material",
+            Image::from_vec(2, 1, 3, vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0]).unwrap(),
+        )
+        .unwrap();
+        b.insert("shadow", Image::from_vec(2, 1, 1, vec![0.0, 1.0]).unwrap())
+            .unwrap();
+        b.insert("depth", Image::from_vec(2, 1, 1, vec![1.0, 4.0]).unwrap())
+            .unwrap();
+        let wts = Weights::default();
+        let (f, off) = Features::build(&color, &b, &wts, Tone::Reinhard, 1.0).unwrap();
+        assert!(off.is_empty());
+        let f1 = (3.0f32 * 0.25).sqrt(); // T(1) = 0.5 in each channel
+        let f2 = 0.3f32;
+        let f3 = 0.5f32; // (1 - 0) / 2
+        let expected =
+            2.0 * f1 + 2.0 * f2 + 3.0 * f3 + 1.0 + 2.0 + 0.0 + 0.5 * 1.0 + 2.0 * 3.0 / 4.0;
+        assert!(
+            (f.distance(0, 1) - expected).abs() < 1e-5,
+            "{} vs {expected}",
+            f.distance(0, 1)
+        );
+        assert_eq!(f.distance(0, 1), f.distance(1, 0));
+        assert_eq!(f.distance(1, 1), 0.0);
+    }
+
+    #[test]
+    fn missing_buffers_switch_features_off() {
+        let (color, b) = set_with(vec![0.0; 12], 2, 2);
+        let (_, off) =
+            Features::build(&color, &b, &Weights::default(), Tone::Reinhard, 1.0).unwrap();
+        assert_eq!(
+            off,
+            vec![
+                "albedo",
+                "normal",
+                "diffuse",
+                "reflective",
+                "refractive",
+                "shadow",
+                "depth"
+            ]
+        );
+        let (_, off) =
+            Features::build(&color, &b, &Weights::color_only(), Tone::Reinhard, 1.0).unwrap();
+        assert!(off.is_empty());
+    }
+}

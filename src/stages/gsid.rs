@@ -1,0 +1,200 @@
+//! The `gsid` stage: feature-guided random-walk denoising (SID when only the colour weight is set).
+
+use serde::{Deserialize, Serialize};
+
+use super::{parse_params, Context, Stage, StageIo};
+use crate::buffers::Buffers;
+use crate::error::{Error, Result};
+use crate::features::{Features, Tone, Weights};
+use crate::progress::Progress;
+use crate::walk::{self, WalkInput, WalkParams};
+
+/// Parameters of the `gsid` stage (keys of its table in a pipeline file).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GsidParams {
+    /// Scale of the difference function: larger averages across bigger differences (no time cost).
+    pub sigma: f32,
+    /// Walks per pixel: quality saturates around 20–40; time grows linearly.
+    pub walks: u32,
+    /// A walk stops when its probability falls below this: smaller walks longer (slower, smoother).
+    pub p_min: f64,
+    /// Step cap per walk.
+    pub max_steps: u32,
+    /// Window radius walks stay inside (4 = 9×9); 0 = unbounded (slower: no distance cache).
+    pub window: u32,
+    /// Weight of the start pixel's own colour per walk (0: counted only when a walk returns).
+    pub self_weight: f32,
+    /// The eight feature weights W1..W8.
+    pub weights: Weights,
+    /// Tone curve for the colour feature F1.
+    pub tone: Tone,
+    /// Multiplier applied to colour before the tone curve.
+    pub exposure: f32,
+    /// Optional one-channel buffer of pixels to avoid (> 0.5 = masked), e.g. `outlier_mask`.
+    pub mask: Option<String>,
+}
+
+impl Default for GsidParams {
+    fn default() -> Self {
+        GsidParams {
+            sigma: 1.0,
+            walks: 20,
+            p_min: 1e-6,
+            max_steps: 64,
+            window: 4,
+            self_weight: 0.0,
+            weights: Weights::default(),
+            tone: Tone::Reinhard,
+            exposure: 1.0,
+            mask: None,
+        }
+    }
+}
+
+fn range_err(key: &str, value: impl std::fmt::Display, range: &str) -> Error {
+    Error::config(key, format!("is {value}, allowed range is {range}"))
+}
+
+impl GsidParams {
+    /// Checks every key against its allowed range; the error names the key.
+    pub fn validate(&self) -> Result<()> {
+        if !(1e-6..=1e6).contains(&self.sigma) {
+            return Err(range_err("sigma", self.sigma, "1e-6 to 1e6"));
+        }
+        if !(1..=100_000).contains(&self.walks) {
+            return Err(range_err("walks", self.walks, "1 to 100000"));
+        }
+        if !(self.p_min > 0.0 && self.p_min < 1.0) {
+            return Err(range_err(
+                "p_min",
+                self.p_min,
+                "between 0 and 1 (exclusive)",
+            ));
+        }
+        if !(1..=100_000).contains(&self.max_steps) {
+            return Err(range_err("max_steps", self.max_steps, "1 to 100000"));
+        }
+        if self.window > 1024 {
+            return Err(range_err("window", self.window, "0 (unbounded) to 1024"));
+        }
+        if !(0.0..=1e6).contains(&self.self_weight) {
+            return Err(range_err("self_weight", self.self_weight, "0 to 1e6"));
+        }
+        if !(self.exposure > 0.0 && self.exposure <= 1e6) {
+            return Err(range_err("exposure", self.exposure, "above 0, at most 1e6"));
+        }
+        self.weights.validate()
+    }
+
+    pub fn walk_params(&self) -> WalkParams {
+        WalkParams {
+            sigma: self.sigma,
+            walks: self.walks,
+            p_min: self.p_min,
+            max_steps: self.max_steps,
+            window: (self.window > 0).then_some(self.window),
+            self_weight: self.self_weight,
+        }
+    }
+}
+
+pub struct GsidStage {
+    id: String,
+    io: StageIo,
+    pub params: GsidParams,
+}
+
+impl GsidStage {
+    pub fn from_table(id: &str, io: StageIo, table: toml::Table) -> Result<Self> {
+        let params: GsidParams = parse_params(id, table)?;
+        params.validate().map_err(|e| e.in_context(id))?;
+        Ok(GsidStage {
+            id: id.to_string(),
+            io,
+            params,
+        })
+    }
+
+    pub fn new(id: &str, io: StageIo, params: GsidParams) -> Result<Self> {
+        params.validate().map_err(|e| e.in_context(id))?;
+        Ok(GsidStage {
+            id: id.to_string(),
+            io,
+            params,
+        })
+    }
+}
+
+/// Runs the walk kernel on `buffers` with `params`: the stage's work, callable by composite stages.
+pub fn run_gsid(
+    params: &GsidParams,
+    input: &str,
+    buffers: &Buffers,
+    ctx: &mut Context,
+    label: &str,
+) -> Result<(crate::image::Image, u64)> {
+    let color = buffers.require(input)?;
+    if color.channels() != 3 {
+        return Err(Error::buffer(
+            input,
+            format!("has {} channels, expected 3", color.channels()),
+        ));
+    }
+    let (features, off) = Features::build(
+        color,
+        buffers,
+        &params.weights,
+        params.tone,
+        params.exposure,
+    )?;
+    if !off.is_empty() {
+        ctx.note(format!(
+            "{label}: features off (buffer missing): {}",
+            off.join(", ")
+        ));
+    }
+    let mask: Option<Vec<bool>> = match &params.mask {
+        Some(name) => match buffers.get_channels(name, 1)? {
+            Some(m) => Some(m.data().iter().map(|&v| v > 0.5).collect()),
+            None => {
+                ctx.note(format!(
+                    "{label}: mask buffer `{name}` not present; no pixels masked"
+                ));
+                None
+            }
+        },
+        None => None,
+    };
+    let walk_input = WalkInput {
+        color,
+        features: &features,
+        mask: mask.as_deref(),
+        seed: ctx.seed,
+        level: ctx.level,
+    };
+    let progress = Progress::new(ctx.progress, label, color.height() as u64);
+    let (out, stats) = walk::denoise(&walk_input, &params.walk_params(), &|| progress.inc(1));
+    progress.finish();
+    Ok((out, stats.steps))
+}
+
+impl Stage for GsidStage {
+    fn id(&self) -> &str {
+        &self.id
+    }
+
+    fn requires(&self) -> Vec<String> {
+        vec![self.io.input.clone()]
+    }
+
+    fn writes(&self) -> Vec<String> {
+        vec![self.io.output.clone()]
+    }
+
+    fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
+        let (out, steps) = run_gsid(&self.params, &self.io.input, buffers, ctx, &self.id)?;
+        buffers.insert(self.io.output.clone(), out)?;
+        Ok(steps)
+    }
+}

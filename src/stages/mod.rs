@@ -1,0 +1,119 @@
+//! Pipeline stages: each kind parses its parameters, checks them, and dispatches to a kernel.
+//!
+//! A stage reads named buffers and writes named buffers (see `buffers`). The common keys of every
+//! stage table are `kind`, `id`, `input` and `output`; everything else is the kind's parameters,
+//! parsed with `deny_unknown_fields` so a misspelled key is an error that names it.
+
+pub mod gsid;
+
+use std::time::Instant;
+
+use crate::buffers::Buffers;
+use crate::error::{Error, Result};
+
+/// What every stage run can use and report into.
+pub struct Context {
+    pub seed: u64,
+    /// Pyramid level (0 = full size), so levels draw independent random numbers.
+    pub level: u32,
+    /// Show progress bars.
+    pub progress: bool,
+    /// One-line notices for the user, in order.
+    pub notes: Vec<String>,
+    /// Per-stage timings and work, in order of execution.
+    pub reports: Vec<StageReport>,
+}
+
+impl Context {
+    pub fn new(seed: u64, progress: bool) -> Self {
+        Context {
+            seed,
+            level: 0,
+            progress,
+            notes: Vec::new(),
+            reports: Vec::new(),
+        }
+    }
+
+    /// Adds a notice once (the same line is not repeated, e.g. from every pyramid level).
+    pub fn note(&mut self, line: String) {
+        if !self.notes.contains(&line) {
+            self.notes.push(line);
+        }
+    }
+}
+
+/// Timing and work of one stage run.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct StageReport {
+    pub id: String,
+    pub level: u32,
+    pub seconds: f64,
+    pub walk_steps: u64,
+}
+
+/// Names of a stage's input and output buffers.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StageIo {
+    pub input: String,
+    pub output: String,
+}
+
+/// A configured stage, ready to run.
+pub trait Stage: Send + Sync {
+    /// The stage's id in its pipeline (its kind unless the file gives an `id`).
+    fn id(&self) -> &str;
+    /// Buffers that must exist before it runs.
+    fn requires(&self) -> Vec<String>;
+    /// Buffers it creates or replaces.
+    fn writes(&self) -> Vec<String>;
+    /// The work itself; `execute` has checked `requires`.
+    fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64>;
+
+    /// Checks preconditions, runs, and records the timing.
+    fn execute(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<()> {
+        for name in self.requires() {
+            buffers.require(&name).map_err(|_| {
+                Error::buffer(
+                    &name,
+                    format!(
+                        "is required by stage `{}` but no earlier stage or input provides it",
+                        self.id()
+                    ),
+                )
+            })?;
+        }
+        let start = Instant::now();
+        let walk_steps = self.execute_impl(buffers, ctx)?;
+        ctx.reports.push(StageReport {
+            id: self.id().to_string(),
+            level: ctx.level,
+            seconds: start.elapsed().as_secs_f64(),
+            walk_steps,
+        });
+        Ok(())
+    }
+}
+
+/// The stage kinds gsid knows, for error messages.
+pub const KINDS: &[&str] = &["gsid"];
+
+/// Builds a stage of `kind` from its parameter table.
+pub fn build(kind: &str, id: &str, io: StageIo, params: toml::Table) -> Result<Box<dyn Stage>> {
+    match kind {
+        "gsid" => Ok(Box::new(gsid::GsidStage::from_table(id, io, params)?)),
+        other => Err(Error::config(
+            format!("{id}.kind"),
+            format!("unknown stage kind `{other}` (known: {})", KINDS.join(", ")),
+        )),
+    }
+}
+
+/// Deserialises a parameter table into `T`, naming the stage in errors.
+pub fn parse_params<T: serde::de::DeserializeOwned>(id: &str, params: toml::Table) -> Result<T> {
+    T::deserialize(toml::Value::Table(params)).map_err(|e| {
+        let msg = e.to_string();
+        let msg = msg.trim().replace('\n', " ");
+        Error::config(id.to_string(), msg)
+    })
+}
