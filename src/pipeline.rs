@@ -85,7 +85,14 @@ impl PipelineSpec {
         let description = take_string(&mut root, "description", "")
             .map_err(ctx)?
             .unwrap_or_default();
-        let raw_stages = match root.remove("stage") {
+        let raw_stages = root.remove("stage");
+        if let Some(key) = root.keys().next() {
+            return Err(Error::config(
+                format!("{origin}: {key}"),
+                "unknown top-level key (expected name, description, stage)",
+            ));
+        }
+        let raw_stages = match raw_stages {
             Some(toml::Value::Array(a)) => a,
             Some(_) => {
                 return Err(Error::config(
@@ -100,12 +107,6 @@ impl PipelineSpec {
                 ))
             }
         };
-        if let Some(key) = root.keys().next() {
-            return Err(Error::config(
-                format!("{origin}: {key}"),
-                "unknown top-level key (expected name, description, stage)",
-            ));
-        }
         let mut stages: Vec<StageSpec> = Vec::new();
         for (n, value) in raw_stages.into_iter().enumerate() {
             let toml::Value::Table(mut table) = value else {
@@ -334,5 +335,86 @@ impl Pipeline {
             ));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_builtin_pipeline_parses_builds_and_matches_its_file_name() {
+        for (name, text) in BUILTIN {
+            let spec = PipelineSpec::parse(text, name).unwrap();
+            assert_eq!(&spec.name, name);
+            assert!(!spec.description.is_empty());
+            spec.build().unwrap();
+        }
+    }
+
+    #[test]
+    fn misspelled_keys_are_named() {
+        let err = PipelineSpec::parse(
+            "name = \"x\"\n[[stage]]\nkind = \"gsid\"\nwalsk = 3\n",
+            "x.toml",
+        )
+        .unwrap()
+        .build()
+        .err()
+        .unwrap()
+        .to_string();
+        assert!(err.contains("x.toml") && err.contains("walsk"), "{err}");
+        let err = PipelineSpec::parse("name = \"x\"\nstages = 1\n", "x.toml")
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(err.contains("stages"), "{err}");
+        let err = PipelineSpec::parse("name = \"x\"\n[[stage]]\nkind = \"blur\"\n", "x.toml")
+            .unwrap()
+            .build()
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(err.contains("blur") && err.contains("kind"), "{err}");
+    }
+
+    #[test]
+    fn out_of_range_values_name_key_and_range() {
+        let mut spec = PipelineSpec::resolve("gsid").unwrap();
+        spec.apply_set("gsid.p_min=2").unwrap();
+        let err = spec.build().err().unwrap().to_string();
+        assert!(
+            err.contains("gsid.p_min") && err.contains("between 0 and 1"),
+            "{err}"
+        );
+        let mut spec = PipelineSpec::resolve("gsid").unwrap();
+        spec.apply_set("gsid.weights.normal=-1").unwrap();
+        let err = spec.build().err().unwrap().to_string();
+        assert!(err.contains("gsid.weights.normal"), "{err}");
+    }
+
+    #[test]
+    fn overrides_parse_toml_values_and_bare_words() {
+        let mut spec = PipelineSpec::resolve("gsid").unwrap();
+        spec.apply_set("gsid.walks=40").unwrap();
+        spec.apply_set("gsid.tone=log1p").unwrap();
+        spec.apply_set("gsid.weights.depth=0.5").unwrap();
+        let p = &spec.stages[0].params;
+        assert_eq!(p["walks"].as_integer(), Some(40));
+        assert_eq!(p["tone"].as_str(), Some("log1p"));
+        assert_eq!(p["weights"]["depth"].as_float(), Some(0.5));
+        spec.build().unwrap();
+        assert!(spec.apply_set("walks=4").is_err());
+        assert!(spec.apply_set("gsid.walks").is_err());
+    }
+
+    #[test]
+    fn duplicate_stage_ids_are_rejected() {
+        let text = "name = \"x\"\n[[stage]]\nkind = \"gsid\"\n[[stage]]\nkind = \"gsid\"\n";
+        let err = PipelineSpec::parse(text, "x.toml")
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(err.contains("used twice"), "{err}");
     }
 }

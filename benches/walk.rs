@@ -1,0 +1,57 @@
+//! Walk kernel throughput, in walk steps per second (ALGORITHM.md §5).
+//!
+//! Run: `cargo bench --bench walk`. Criterion's "elem/s" is walk steps per second on all threads;
+//! the `1 thread` group gives the per-core figure.
+
+use std::path::Path;
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use gsid::features::{Features, Tone, Weights};
+use gsid::walk::{denoise, denoise_reference, WalkInput, WalkParams};
+use gsid::{io, sanitize};
+
+fn bench_walks(c: &mut Criterion) {
+    let mut set = io::load_render_set(Path::new("fixtures/mitsuba-cornell/spp4")).unwrap();
+    sanitize::sanitize(&mut set.buffers);
+    let color = set.buffers.get("color").unwrap();
+    let (features, _) = Features::build(
+        color,
+        &set.buffers,
+        &Weights::default(),
+        Tone::Reinhard,
+        1.0,
+    )
+    .unwrap();
+    let input = WalkInput {
+        color,
+        features: &features,
+        mask: None,
+        seed: 0,
+        level: 0,
+    };
+    let params = WalkParams::default();
+    let steps = denoise(&input, &params, &|| {}).1.steps;
+
+    for threads in [1usize, 2] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let mut group =
+            c.benchmark_group(format!("walk kernel, {threads} thread(s), 128x128 gsid"));
+        group.throughput(Throughput::Elements(steps));
+        group.sample_size(20);
+        group.bench_function("fast", |b| {
+            b.iter(|| pool.install(|| denoise(&input, &params, &|| {})))
+        });
+        if threads == 1 {
+            group.bench_function("reference", |b| {
+                b.iter(|| denoise_reference(&input, &params))
+            });
+        }
+        group.finish();
+    }
+}
+
+criterion_group!(benches, bench_walks);
+criterion_main!(benches);

@@ -1,0 +1,260 @@
+//! The binary as a user runs it: outputs, determinism, and bad input (exit 2, one line, nothing written).
+
+mod common;
+
+use common::*;
+use gsid::io;
+use std::path::Path;
+
+#[test]
+fn denoise_then_eval_on_the_fixture() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out.exr");
+    let run = gsid(&[
+        "denoise",
+        "fixtures/mitsuba-cornell/spp16",
+        "--pipeline",
+        "gsid",
+        "-o",
+        out.to_str().unwrap(),
+        "-q",
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let eval = gsid(&[
+        "eval",
+        out.to_str().unwrap(),
+        "--reference",
+        "fixtures/mitsuba-cornell/reference.exr",
+        "--json",
+    ]);
+    assert!(eval.status.success());
+    let json: serde_json::Value = serde_json::from_slice(&eval.stdout).unwrap();
+    assert!(json["ssim"].as_f64().unwrap() > 0.9);
+    assert_eq!(
+        files_in(tmp.path()),
+        vec!["out.exr"],
+        "no temporary files left behind"
+    );
+}
+
+#[test]
+fn same_seed_same_bits_on_one_and_two_threads() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut outputs = Vec::new();
+    for threads in ["1", "2"] {
+        let out = tmp.path().join(format!("t{threads}.exr"));
+        let run = gsid(&[
+            "denoise",
+            "fixtures/mitsuba-cornell/spp4",
+            "-p",
+            "gsid",
+            "-o",
+            out.to_str().unwrap(),
+            "--seed",
+            "7",
+            "--threads",
+            threads,
+            "-q",
+        ]);
+        assert!(run.status.success(), "{}", stderr(&run));
+        outputs.push(io::read_image(&out, 3).unwrap());
+    }
+    let bits = |i: &gsid::Image| i.data().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&outputs[0]), bits(&outputs[1]));
+    let other_seed = tmp.path().join("s8.exr");
+    gsid(&[
+        "denoise",
+        "fixtures/mitsuba-cornell/spp4",
+        "-p",
+        "gsid",
+        "-o",
+        other_seed.to_str().unwrap(),
+        "--seed",
+        "8",
+        "-q",
+    ]);
+    assert_ne!(
+        bits(&outputs[0]),
+        bits(&io::read_image(&other_seed, 3).unwrap()),
+        "the seed must matter"
+    );
+}
+
+#[test]
+fn set_overrides_reach_the_stage() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("o.exr");
+    let run = gsid(&[
+        "denoise",
+        "fixtures/mitsuba-cornell/spp4",
+        "-o",
+        out.to_str().unwrap(),
+        "--set",
+        "gsid.walks=1",
+        "--set",
+        "gsid.weights.depth=0",
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    assert!(stderr(&run).contains("0.1 M walk steps") || stderr(&run).contains("walk steps"));
+    let bad = gsid(&[
+        "denoise",
+        "fixtures/mitsuba-cornell/spp4",
+        "-o",
+        out.to_str().unwrap(),
+        "--set",
+        "gsid.walks=0",
+    ]);
+    assert_bad_input(&bad, "gsid.walks");
+}
+
+#[test]
+fn missing_color_is_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = tmp.path().join("set");
+    let mut b = synthetic_set(8, 8);
+    b.remove("color");
+    write_set(&set, &b);
+    let out = tmp.path().join("out.exr");
+    let run = gsid(&[
+        "denoise",
+        set.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_bad_input(&run, "color");
+    assert!(!out.exists());
+}
+
+#[test]
+fn buffers_of_different_sizes_name_both_files() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = tmp.path().join("set");
+    write_set(&set, &synthetic_set(8, 8));
+    io::write_exr(&set.join("normal.exr"), &gsid::Image::new(9, 8, 3)).unwrap();
+    let out = tmp.path().join("out.exr");
+    let run = gsid(&[
+        "denoise",
+        set.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_bad_input(&run, "normal.exr");
+    assert!(
+        stderr(&run).contains("color.exr") && stderr(&run).contains("9x8"),
+        "{}",
+        stderr(&run)
+    );
+    assert!(!out.exists());
+}
+
+#[test]
+fn truncated_exr_is_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = tmp.path().join("set");
+    write_set(&set, &synthetic_set(16, 16));
+    let bytes = std::fs::read(set.join("albedo.exr")).unwrap();
+    std::fs::write(set.join("albedo.exr"), &bytes[..bytes.len() / 2]).unwrap();
+    let out = tmp.path().join("out.exr");
+    let run = gsid(&[
+        "denoise",
+        set.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_bad_input(&run, "albedo.exr");
+    assert!(!out.exists());
+}
+
+#[test]
+fn unknown_pipeline_is_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out.exr");
+    let run = gsid(&[
+        "denoise",
+        FIXTURE_SPP1,
+        "-p",
+        "no-such-pipeline",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_bad_input(&run, "no-such-pipeline");
+    assert!(!out.exists());
+}
+
+const FIXTURE_SPP1: &str = "fixtures/mitsuba-cornell/spp1";
+
+#[test]
+fn misspelled_pipeline_key_is_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let file = tmp.path().join("typo.toml");
+    std::fs::write(
+        &file,
+        "name = \"typo\"\n[[stage]]\nkind = \"gsid\"\nsigam = 0.5\n",
+    )
+    .unwrap();
+    let out = tmp.path().join("out.exr");
+    let run = gsid(&[
+        "denoise",
+        FIXTURE_SPP1,
+        "-p",
+        file.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_bad_input(&run, "sigam");
+    assert!(stderr(&run).contains("typo.toml"), "{}", stderr(&run));
+    assert!(!out.exists());
+}
+
+#[test]
+fn unwritable_output_path_is_named_and_nothing_is_left() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("no-such-folder").join("out.exr");
+    let run = gsid(&["denoise", FIXTURE_SPP1, "-o", out.to_str().unwrap()]);
+    assert_bad_input(&run, "no-such-folder");
+    assert!(!out.exists());
+    let run = gsid(&["denoise", FIXTURE_SPP1, "-o", tmp.path().to_str().unwrap()]);
+    assert_bad_input(&run, "is a directory");
+    assert!(files_in(tmp.path()).is_empty());
+}
+
+#[test]
+fn refuses_to_overwrite_an_input() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = tmp.path().join("set");
+    write_set(&set, &synthetic_set(8, 8));
+    let before = std::fs::read(set.join("color.exr")).unwrap();
+    let run = gsid(&[
+        "denoise",
+        set.to_str().unwrap(),
+        "-o",
+        set.join("color.exr").to_str().unwrap(),
+    ]);
+    assert_bad_input(&run, "color.exr");
+    assert_eq!(before, std::fs::read(set.join("color.exr")).unwrap());
+}
+
+#[test]
+fn eval_rejects_mismatched_sizes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let a = tmp.path().join("a.exr");
+    io::write_exr(&a, &gsid::Image::new(4, 4, 3)).unwrap();
+    let run = gsid(&[
+        "eval",
+        a.to_str().unwrap(),
+        "--reference",
+        "fixtures/mitsuba-cornell/reference.exr",
+    ]);
+    assert_bad_input(&run, "a.exr");
+}
+
+#[test]
+fn pipelines_lists_the_named_pipelines() {
+    let run = gsid(&["pipelines"]);
+    assert!(run.status.success());
+    let text = String::from_utf8_lossy(&run.stdout);
+    for name in ["sid", "gsid"] {
+        assert!(text.lines().any(|l| l.starts_with(name)), "{text}");
+    }
+    assert!(Path::new("pipelines/gsid.toml").is_file());
+}

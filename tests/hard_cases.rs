@@ -1,0 +1,122 @@
+//! Numerically hard inputs through whole pipelines: every output finite and sensible.
+
+mod common;
+
+use common::synthetic_set;
+use gsid::pipeline::PipelineSpec;
+use gsid::{Buffers, Image};
+
+fn run(pipeline: &str, sets: &[&str], buffers: &mut Buffers) -> Image {
+    let mut spec = PipelineSpec::resolve(pipeline).unwrap();
+    for s in sets {
+        spec.apply_set(s).unwrap();
+    }
+    let (out, _) = spec.build().unwrap().run(buffers, 5, false).unwrap();
+    out
+}
+
+fn assert_finite(img: &Image, what: &str) {
+    assert!(img.all_finite(), "{what}: non-finite output");
+    assert!(
+        img.data().iter().all(|&v| v >= 0.0),
+        "{what}: negative output"
+    );
+}
+
+const PIPELINES: [&str; 2] = ["gsid", "sid"];
+
+#[test]
+fn tiny_and_huge_sigma_stay_finite() {
+    for p in PIPELINES {
+        for sigma in ["1e-4", "1e4", "1e-6", "1e6"] {
+            let mut b = synthetic_set(16, 12);
+            let input = b.get("color").unwrap().clone();
+            let out = run(p, &[&format!("gsid.sigma={sigma}")], &mut b);
+            assert_finite(&out, &format!("{p} sigma {sigma}"));
+            let mean_in = input.channel_means().iter().sum::<f64>();
+            let mean_out = out.channel_means().iter().sum::<f64>();
+            assert!(
+                (mean_in - mean_out).abs() < 0.25 * mean_in,
+                "{p} sigma {sigma}: mean {mean_in} → {mean_out}"
+            );
+        }
+    }
+}
+
+#[test]
+fn fireflies_of_a_million_stay_finite_and_local() {
+    for p in PIPELINES {
+        let mut b = synthetic_set(24, 24);
+        let c = b.get_mut("color").unwrap();
+        for i in [30usize, 200, 401] {
+            c.pixel_mut(i).copy_from_slice(&[1e6, 1e6, 1e6]);
+        }
+        let out = run(p, &[], &mut b);
+        assert_finite(&out, p);
+        // A firefly may spread, but not to the far corner of the image.
+        assert!(
+            out.pixel(24 * 24 - 1)[0] < 1e3,
+            "{p}: firefly reached the far corner"
+        );
+    }
+}
+
+#[test]
+fn nan_and_inf_pixels_are_sanitised() {
+    for p in PIPELINES {
+        let mut b = synthetic_set(10, 10);
+        let c = b.get_mut("color").unwrap();
+        c.pixel_mut(3)
+            .copy_from_slice(&[f32::NAN, f32::INFINITY, f32::NEG_INFINITY]);
+        c.pixel_mut(57).copy_from_slice(&[f32::NAN; 3]);
+        b.get_mut("normal")
+            .unwrap()
+            .pixel_mut(4)
+            .copy_from_slice(&[f32::NAN; 3]);
+        b.get_mut("depth").unwrap().pixel_mut(5)[0] = f32::INFINITY;
+        b.get_mut("albedo").unwrap().pixel_mut(6)[0] = f32::NAN;
+        let out = run(p, &[], &mut b);
+        assert_finite(&out, p);
+    }
+}
+
+#[test]
+fn black_and_constant_images_come_back_unchanged() {
+    for p in PIPELINES {
+        for value in [0.0f32, 0.37, 1e5] {
+            let mut b = synthetic_set(9, 7);
+            b.insert("color", Image::filled(9, 7, 3, value)).unwrap();
+            let out = run(p, &[], &mut b);
+            assert!(
+                out.data()
+                    .iter()
+                    .all(|&v| (v - value).abs() <= value * 1e-6),
+                "{p}: constant {value} changed"
+            );
+        }
+    }
+}
+
+#[test]
+fn degenerate_sizes_work() {
+    for p in PIPELINES {
+        for (w, h) in [(1, 1), (1, 9), (9, 1), (3, 5), (2, 2)] {
+            let mut b = synthetic_set(w, h);
+            let out = run(p, &[], &mut b);
+            assert_eq!(out.dims(), (w, h));
+            assert_finite(&out, &format!("{p} {w}x{h}"));
+        }
+    }
+}
+
+#[test]
+fn a_single_pixel_comes_back_as_itself() {
+    let mut b = Buffers::new();
+    b.insert(
+        "color",
+        Image::from_vec(1, 1, 3, vec![0.1, 0.2, 0.3]).unwrap(),
+    )
+    .unwrap();
+    let out = run("gsid", &[], &mut b);
+    assert_eq!(out.data(), &[0.1, 0.2, 0.3]);
+}
