@@ -11,6 +11,7 @@ pub mod io;
 pub mod metrics;
 pub mod pipeline;
 pub mod progress;
+pub mod pyramid;
 pub mod sanitize;
 pub mod stages;
 pub mod walk;

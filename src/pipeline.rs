@@ -34,6 +34,7 @@ pub const DEFAULT_PIPELINE: &str = "gsid";
 pub const BUILTIN: &[(&str, &str)] = &[
     ("sid", include_str!("../pipelines/sid.toml")),
     ("gsid", include_str!("../pipelines/gsid.toml")),
+    ("pyramid", include_str!("../pipelines/pyramid.toml")),
 ];
 
 /// One stage as written in the file.
@@ -107,42 +108,7 @@ impl PipelineSpec {
                 ))
             }
         };
-        let mut stages: Vec<StageSpec> = Vec::new();
-        for (n, value) in raw_stages.into_iter().enumerate() {
-            let toml::Value::Table(mut table) = value else {
-                return Err(Error::config(
-                    format!("{origin}: stage[{n}]"),
-                    "must be a table",
-                ));
-            };
-            let here = format!("stage[{n}].");
-            let kind = take_string(&mut table, "kind", &here)
-                .map_err(ctx)?
-                .ok_or_else(|| {
-                    Error::config(format!("{origin}: stage[{n}].kind"), "is required")
-                })?;
-            let id = take_string(&mut table, "id", &here)
-                .map_err(ctx)?
-                .unwrap_or_else(|| kind.clone());
-            if stages.iter().any(|s| s.id == id) {
-                return Err(Error::config(
-                    format!("{origin}: stage[{n}].id"),
-                    format!("`{id}` is used twice; give each stage of the same kind its own id"),
-                ));
-            }
-            let input = take_string(&mut table, "input", &here)
-                .map_err(ctx)?
-                .unwrap_or_else(|| "color".into());
-            let output = take_string(&mut table, "output", &here)
-                .map_err(ctx)?
-                .unwrap_or_else(|| OUTPUT_BUFFER.into());
-            stages.push(StageSpec {
-                kind,
-                id,
-                io: StageIo { input, output },
-                params: table,
-            });
-        }
+        let stages = parse_stage_list(raw_stages, "stage").map_err(ctx)?;
         Ok(PipelineSpec {
             name,
             description,
@@ -246,6 +212,37 @@ impl PipelineSpec {
             stages,
         })
     }
+}
+
+/// Parses an array of stage tables (`[[stage]]`, or a composite stage's sub-list); `prefix` names
+/// the array in errors (e.g. `stage`, `pyramid.stages`).
+pub fn parse_stage_list(values: Vec<toml::Value>, prefix: &str) -> Result<Vec<StageSpec>> {
+    let mut stages: Vec<StageSpec> = Vec::new();
+    for (n, value) in values.into_iter().enumerate() {
+        let here = format!("{prefix}[{n}].");
+        let toml::Value::Table(mut table) = value else {
+            return Err(Error::config(format!("{prefix}[{n}]"), "must be a table"));
+        };
+        let kind = take_string(&mut table, "kind", &here)?
+            .ok_or_else(|| Error::config(format!("{here}kind"), "is required"))?;
+        let id = take_string(&mut table, "id", &here)?.unwrap_or_else(|| kind.clone());
+        if stages.iter().any(|s| s.id == id) {
+            return Err(Error::config(
+                format!("{here}id"),
+                format!("`{id}` is used twice; give each stage of the same kind its own id"),
+            ));
+        }
+        let input = take_string(&mut table, "input", &here)?.unwrap_or_else(|| "color".into());
+        let output =
+            take_string(&mut table, "output", &here)?.unwrap_or_else(|| OUTPUT_BUFFER.into());
+        stages.push(StageSpec {
+            kind,
+            id,
+            io: StageIo { input, output },
+            params: table,
+        });
+    }
+    Ok(stages)
 }
 
 /// Reads an override value as TOML, falling back to a plain string (so `tone=log1p` works unquoted).

@@ -1,0 +1,377 @@
+//! Gaussian/Laplacian pyramids and Laplacian blending (ALGORITHM.md §4).
+//!
+//! REDUCE is a sum-1 Gaussian (σ = 1 source pixel, close to the 5-tap binomial) followed by halving
+//! (odd sizes round up); EXPAND interpolates back to a stored size with the same Gaussian in coarse
+//! pixels. Both are convolution resamplings by `fast_image_resize` with a custom filter, which
+//! renormalises the kernel at borders, so energy is kept there too. Blending uses the very same REDUCE
+//! and EXPAND for building and collapsing, so an untouched pyramid reconstructs its input up to float
+//! rounding whatever the filters are.
+
+use fast_image_resize as fr;
+
+use crate::buffers::Buffers;
+use crate::error::{Error, Result};
+use crate::image::Image;
+
+/// Levels stop before either side would drop below this many pixels.
+pub const MIN_LEVEL_SIZE: usize = 4;
+
+/// The Gaussian used by REDUCE and EXPAND, in destination pixels when downscaling (σ = 0.5 there is
+/// σ = 1 source pixel) and in source pixels when upscaling.
+fn gaussian(x: f64) -> f64 {
+    (-2.0 * x * x).exp()
+}
+
+fn filter() -> fr::FilterType {
+    // Support 1.5 = 3σ; the constructor only fails for a non-positive support.
+    fr::FilterType::Custom(
+        fr::Filter::new("gaussian-0.5", gaussian, 1.5).expect("positive support"),
+    )
+}
+
+fn pixel_type(channels: usize) -> Result<fr::PixelType> {
+    match channels {
+        1 => Ok(fr::PixelType::F32),
+        2 => Ok(fr::PixelType::F32x2),
+        3 => Ok(fr::PixelType::F32x3),
+        4 => Ok(fr::PixelType::F32x4),
+        c => Err(Error::Usage(format!("cannot resample a {c}-channel image"))),
+    }
+}
+
+/// Resamples `img` to `w × h` with the pyramid Gaussian.
+pub fn resample(img: &Image, w: usize, h: usize) -> Result<Image> {
+    if img.dims() == (w, h) {
+        return Ok(img.clone());
+    }
+    let pt = pixel_type(img.channels())?;
+    let src = fr::images::ImageRef::new(
+        img.width() as u32,
+        img.height() as u32,
+        bytemuck::cast_slice(img.data()),
+        pt,
+    )
+    .map_err(|e| Error::Runtime(format!("resample: {e}")))?;
+    let mut dst = fr::images::Image::new(w as u32, h as u32, pt);
+    let options = fr::ResizeOptions::new().resize_alg(fr::ResizeAlg::Convolution(filter()));
+    fr::Resizer::new()
+        .resize(&src, &mut dst, &options)
+        .map_err(|e| Error::Runtime(format!("resample: {e}")))?;
+    let data: Vec<f32> = bytemuck::cast_slice(dst.buffer()).to_vec();
+    Image::from_vec(w, h, img.channels(), data)
+}
+
+/// Size of the next coarser level.
+pub fn half(w: usize, h: usize) -> (usize, usize) {
+    (w.div_ceil(2), h.div_ceil(2))
+}
+
+/// REDUCE: blur and halve.
+pub fn reduce(img: &Image) -> Result<Image> {
+    let (w, h) = half(img.width(), img.height());
+    resample(img, w, h)
+}
+
+/// EXPAND: interpolate up to the stored finer size.
+pub fn expand(img: &Image, w: usize, h: usize) -> Result<Image> {
+    resample(img, w, h)
+}
+
+/// How many levels an image of `w × h` allows, up to `wanted`.
+pub fn allowed_levels(w: usize, h: usize, wanted: usize) -> usize {
+    let (mut w, mut h) = (w, h);
+    let mut levels = 1;
+    while levels < wanted {
+        let (nw, nh) = half(w, h);
+        if nw < MIN_LEVEL_SIZE || nh < MIN_LEVEL_SIZE {
+            break;
+        }
+        (w, h) = (nw, nh);
+        levels += 1;
+    }
+    levels
+}
+
+/// Depth REDUCE: the nearest surface of each 2×2 block, so no phantom depths between surfaces appear.
+pub fn reduce_min(img: &Image) -> Image {
+    let (w, h) = img.dims();
+    let (nw, nh) = half(w, h);
+    let c = img.channels();
+    Image::from_fn(nw, nh, c, |x, y, ch| {
+        let mut m = f32::INFINITY;
+        for yy in 2 * y..(2 * y + 2).min(h) {
+            for xx in 2 * x..(2 * x + 2).min(w) {
+                m = m.min(img.at(xx, yy)[ch]);
+            }
+        }
+        m
+    })
+}
+
+/// Scales every non-zero 3-vector back to unit length (zero stays "unknown").
+pub fn renormalize(img: &mut Image) {
+    for n in img.data_mut().chunks_exact_mut(3) {
+        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        if len > 1e-6 {
+            n.iter_mut().for_each(|v| *v /= len);
+        } else {
+            n.fill(0.0);
+        }
+    }
+}
+
+/// REDUCE of colour that ignores masked pixels (normalised convolution), so a masked firefly does not
+/// spread into coarse levels. Returns the colour and the coarse mask (set where no valid pixel fed it).
+pub fn reduce_masked(color: &Image, mask: &Image) -> Result<(Image, Image)> {
+    let (w, h) = color.dims();
+    let valid = Image::from_fn(
+        w,
+        h,
+        1,
+        |x, y, _| if mask.at(x, y)[0] > 0.5 { 0.0 } else { 1.0 },
+    );
+    let weighted = Image::from_fn(w, h, 3, |x, y, c| color.at(x, y)[c] * valid.at(x, y)[0]);
+    let (nw, nh) = half(w, h);
+    let num = resample(&weighted, nw, nh)?;
+    let den = resample(&valid, nw, nh)?;
+    let plain = resample(color, nw, nh)?;
+    let mut out = Image::new(nw, nh, 3);
+    let mut coarse_mask = Image::new(nw, nh, 1);
+    for i in 0..nw * nh {
+        let d = den.pixel(i)[0];
+        if d > 1e-3 {
+            for c in 0..3 {
+                out.pixel_mut(i)[c] = (num.pixel(i)[c] / d).max(0.0);
+            }
+        } else {
+            out.pixel_mut(i).copy_from_slice(plain.pixel(i));
+            coarse_mask.pixel_mut(i)[0] = 1.0;
+        }
+    }
+    Ok((out, coarse_mask))
+}
+
+/// The next coarser level of every buffer: colour-like buffers by REDUCE, normals renormalised,
+/// depth by nearest surface, the colour `input` masked by `mask` when one is given.
+pub fn reduce_buffers(buffers: &Buffers, input: &str, mask: Option<&str>) -> Result<Buffers> {
+    let mut out = Buffers::new();
+    let masked = match (mask, buffers.get(input)) {
+        (Some(m), Some(color)) => match buffers.get(m) {
+            Some(mask_img) => Some(reduce_masked(color, mask_img)?),
+            None => None,
+        },
+        _ => None,
+    };
+    for name in buffers.names() {
+        let img = buffers.get(name).expect("listed buffer exists");
+        let reduced = match (name, &masked) {
+            (n, Some((color, _))) if n == input => color.clone(),
+            (n, Some((_, m))) if Some(n) == mask => m.clone(),
+            ("depth", _) => reduce_min(img),
+            ("normal", _) => {
+                let mut n = reduce(img)?;
+                renormalize(&mut n);
+                n
+            }
+            _ => reduce(img)?,
+        };
+        out.insert(name, reduced)?;
+    }
+    Ok(out)
+}
+
+/// Where the bands of Laplacian blending are formed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BlendDomain {
+    /// Bands of linear radiance: the textbook form; halos around bright HDR edges.
+    Linear,
+    /// Bands of ln(x + ε): a coarse-level change acts as a ratio, so a correction next to a light does
+    /// not swamp a dark neighbour.
+    Log,
+}
+
+/// Offset of the log domain: about the noise floor that relMSE also forgives (its 0.01 is ε²).
+const LOG_EPS: f32 = 0.1;
+
+impl BlendDomain {
+    fn forward(self, img: &Image) -> Image {
+        let mut out = img.clone();
+        if self == BlendDomain::Log {
+            out.data_mut()
+                .iter_mut()
+                .for_each(|v| *v = (v.max(0.0) + LOG_EPS).ln());
+        }
+        out
+    }
+
+    fn inverse(self, img: &mut Image) {
+        if self == BlendDomain::Log {
+            img.data_mut()
+                .iter_mut()
+                .for_each(|v| *v = v.exp() - LOG_EPS);
+        }
+    }
+}
+
+/// Range scale of the guided EXPAND, in the blend domain (log: 0.5 ≈ a factor 1.6 in brightness).
+const GUIDE_SIGMA: f32 = 0.5;
+
+/// EXPAND of a coarse correction `c` to the fine size, guided by the fine image `fine` and its
+/// REDUCE `coarse_guide` (all in the blend domain): joint bilateral upsampling (Kopf et al. 2007).
+/// A fine pixel takes corrections only from coarse pixels that look like it, so a change made at a
+/// mixed light/ceiling pixel does not spill onto the ceiling. Zero correction expands to exactly zero.
+fn guided_expand(c: &Image, fine: &Image, coarse_guide: &Image) -> Image {
+    let (w, h) = fine.dims();
+    let (cw, ch) = c.dims();
+    let inv_r = 1.0 / (2.0 * GUIDE_SIGMA * GUIDE_SIGMA);
+    Image::from_fn(w, h, 3, |x, y, k| {
+        // Fine pixel centre in coarse pixel coordinates.
+        let fx = (x as f32 + 0.5) * cw as f32 / w as f32 - 0.5;
+        let fy = (y as f32 + 0.5) * ch as f32 / h as f32 - 0.5;
+        let (x0, y0) = (fx.floor() as isize, fy.floor() as isize);
+        let g = fine.at(x, y);
+        let (mut sum, mut wsum, mut plain, mut psum) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
+        for qy in y0 - 1..=y0 + 2 {
+            for qx in x0 - 1..=x0 + 2 {
+                if qx < 0 || qy < 0 || qx >= cw as isize || qy >= ch as isize {
+                    continue;
+                }
+                let (qx, qy) = (qx as usize, qy as usize);
+                let (dx, dy) = (qx as f32 - fx, qy as f32 - fy);
+                let spatial = gaussian((dx * dx + dy * dy).sqrt() as f64) as f32;
+                let q = coarse_guide.at(qx, qy);
+                let d2 =
+                    ((g[0] - q[0]).powi(2) + (g[1] - q[1]).powi(2) + (g[2] - q[2]).powi(2)) / 3.0;
+                let wq = spatial * (-d2 * inv_r).exp();
+                sum += wq * c.at(qx, qy)[k];
+                wsum += wq;
+                plain += spatial * c.at(qx, qy)[k];
+                psum += spatial;
+            }
+        }
+        // No similar coarse pixel: fall back to the plain spatial weights rather than dropping the correction.
+        if wsum > 1e-4 * psum {
+            sum / wsum
+        } else {
+            plain / psum.max(f32::MIN_POSITIVE)
+        }
+    })
+}
+
+/// Laplacian blending of denoised levels `d[0]` (finest) … `d[L]` (coarsest), in domain T:
+/// T(R_L) = T(D_L); T(R_l) = b_l·(T(D_l) − EXPAND(T(REDUCE(D_l)))) + EXPAND(T(R_{l+1})), clamped at 0.
+///
+/// Written as a correction, T(R_l) = b_l·T(D_l) + (1 − b_l)·EXPAND(T(REDUCE(D_l))) + EXPAND(C) with
+/// C = T(R_{l+1}) − T(REDUCE(D_l)); with `guided`, C is expanded by [`guided_expand`]. REDUCE is the
+/// linear one that built the pyramid, so an untouched pyramid (R_{l+1} = REDUCE(D_l), C = 0) gives back
+/// D_0 in every mode. `band_weights[l]` (default 1) scales the detail band of level l.
+pub fn blend(
+    d: &[Image],
+    band_weights: &[f32],
+    domain: BlendDomain,
+    guided: bool,
+) -> Result<Image> {
+    let last = d
+        .len()
+        .checked_sub(1)
+        .ok_or_else(|| Error::Runtime("blend of no levels".into()))?;
+    let mut r = domain.forward(&d[last]);
+    for l in (0..last).rev() {
+        let (w, h) = d[l].dims();
+        let reduced = domain.forward(&reduce(&d[l])?);
+        let fine = domain.forward(&d[l]);
+        let mut correction = r;
+        for (v, &lo) in correction.data_mut().iter_mut().zip(reduced.data()) {
+            *v -= lo;
+        }
+        let up = if guided {
+            guided_expand(&correction, &fine, &reduced)
+        } else {
+            expand(&correction, w, h)?
+        };
+        let b = band_weights.get(l).copied().unwrap_or(1.0);
+        let mut next = fine;
+        if b != 1.0 {
+            let low = expand(&reduced, w, h)?;
+            for (v, &lo) in next.data_mut().iter_mut().zip(low.data()) {
+                *v = b * *v + (1.0 - b) * lo;
+            }
+        }
+        for (v, &u) in next.data_mut().iter_mut().zip(up.data()) {
+            *v += u;
+        }
+        r = next;
+    }
+    domain.inverse(&mut r);
+    r.data_mut().iter_mut().for_each(|v| *v = v.max(0.0));
+    Ok(r)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ramp(w: usize, h: usize) -> Image {
+        Image::from_fn(w, h, 3, |x, y, c| {
+            ((x * 13 + y * 7 + c * 5) % 17) as f32 / 4.0 + 0.01
+        })
+    }
+
+    #[test]
+    fn reduce_keeps_the_mean() {
+        let img = ramp(40, 30);
+        let small = reduce(&img).unwrap();
+        assert_eq!(small.dims(), (20, 15));
+        for (a, b) in img.channel_means().iter().zip(small.channel_means()) {
+            assert!((a - b).abs() < 0.02 * a, "{a} vs {b}");
+        }
+    }
+
+    #[test]
+    fn untouched_pyramid_reconstructs_its_input() {
+        for (w, h, levels) in [(37, 23, 4), (1, 1, 3), (64, 64, 5), (5, 9, 3)] {
+            let img = ramp(w, h);
+            let n = allowed_levels(w, h, levels);
+            let mut levels_imgs = vec![img.clone()];
+            for _ in 1..n {
+                let next = reduce(levels_imgs.last().unwrap()).unwrap();
+                levels_imgs.push(next);
+            }
+            for domain in [BlendDomain::Linear, BlendDomain::Log] {
+                let out = blend(&levels_imgs, &[], domain).unwrap();
+                let max_rel = out
+                    .data()
+                    .iter()
+                    .zip(img.data())
+                    .map(|(a, b)| ((a - b) / b.abs().max(1e-6)).abs())
+                    .fold(0.0f32, f32::max);
+                assert!(max_rel < 1e-5, "{w}x{h} {domain:?}: {max_rel}");
+            }
+        }
+    }
+
+    #[test]
+    fn depth_reduce_picks_the_nearest_surface() {
+        let d = Image::from_vec(3, 1, 1, vec![5.0, 1.0, 9.0]).unwrap();
+        assert_eq!(reduce_min(&d).data(), &[1.0, 9.0]);
+    }
+
+    #[test]
+    fn masked_reduce_ignores_fireflies() {
+        let mut color = Image::filled(8, 8, 3, 0.5);
+        color.pixel_mut(27).copy_from_slice(&[1e6; 3]);
+        let mut mask = Image::new(8, 8, 1);
+        mask.pixel_mut(27)[0] = 1.0;
+        let (small, coarse_mask) = reduce_masked(&color, &mask).unwrap();
+        assert!(small.data().iter().all(|&v| (v - 0.5).abs() < 1e-5));
+        assert!(coarse_mask.data().iter().all(|&v| v == 0.0));
+    }
+
+    #[test]
+    fn level_count_is_clipped_for_small_images() {
+        assert_eq!(allowed_levels(1, 1, 4), 1);
+        assert_eq!(allowed_levels(37, 23, 4), 3);
+        assert_eq!(allowed_levels(128, 128, 4), 4);
+    }
+}

@@ -1,0 +1,262 @@
+//! The `pyramid` composite stage: run a sub-list of stages at every level of a Gaussian pyramid,
+//! then recombine the results by Laplacian blending (ALGORITHM.md §4).
+//!
+//! ```toml
+//! [[stage]]
+//! kind = "pyramid"
+//! levels = 3                 # including full size
+//! blend = [1.0, 1.0]         # detail-band weights, fine to coarse (missing = 1)
+//! mask = "outlier_mask"      # optional: pixels left out of REDUCE
+//! gsid = { walks = 16 }      # override a sub-stage at every level (by its id)
+//! level1 = { gsid = { sigma = 1.5 } }   # override a sub-stage at one level
+//! [[stage.stages]]           # the sub-list, run at each level
+//! kind = "gsid"
+//! sigma = 1.0
+//! ```
+//!
+//! `--set pyramid.levels=4`, `--set pyramid.gsid.walks=10` and `--set pyramid.level2.gsid.sigma=2`
+//! all address these keys.
+
+use serde::{Deserialize, Serialize};
+
+use super::{parse_params, Context, Stage, StageIo};
+use crate::buffers::Buffers;
+use crate::error::{Error, Result};
+use crate::pipeline::{parse_stage_list, StageSpec};
+use crate::pyramid::{self, BlendDomain};
+
+/// The pyramid's own parameters (sub-stages and overrides are parsed separately).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PyramidParams {
+    /// Levels including full size: more reaches lower frequencies; each adds about ¼ of the previous cost.
+    pub levels: u32,
+    /// Detail-band blend weights, fine to coarse (missing entries are 1): below 1 smooths that band.
+    pub blend: Vec<f32>,
+    /// One-channel buffer of pixels to leave out of REDUCE, so masked fireflies do not spread.
+    pub mask: Option<String>,
+    /// Domain of the Laplacian bands: `log` avoids halos at bright HDR edges, `linear` is the textbook form.
+    pub domain: BlendDomain,
+    /// Expand coarse corrections guided by the finer level (joint bilateral), so they stop at edges.
+    pub guided: bool,
+}
+
+impl Default for PyramidParams {
+    fn default() -> Self {
+        PyramidParams {
+            levels: 3,
+            blend: Vec::new(),
+            mask: None,
+            domain: BlendDomain::Log,
+            guided: true,
+        }
+    }
+}
+
+/// Most levels accepted; a 2^12 reduction leaves nothing of any real render.
+const MAX_LEVELS: u32 = 12;
+
+impl PyramidParams {
+    pub fn validate(&self) -> Result<()> {
+        if !(1..=MAX_LEVELS).contains(&self.levels) {
+            return Err(Error::config(
+                "levels",
+                format!("is {}, allowed range is 1 to {MAX_LEVELS}", self.levels),
+            ));
+        }
+        for (i, b) in self.blend.iter().enumerate() {
+            if !(0.0..=4.0).contains(b) {
+                return Err(Error::config(
+                    format!("blend[{i}]"),
+                    format!("is {b}, allowed range is 0 to 4"),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+pub struct PyramidStage {
+    id: String,
+    io: StageIo,
+    pub params: PyramidParams,
+    /// The sub-stages as written (used by `ablate` to flatten the pyramid).
+    pub sub_specs: Vec<StageSpec>,
+    /// Built sub-stages per level.
+    levels: Vec<Vec<Box<dyn Stage>>>,
+}
+
+/// Deep-merges `over` into `base` (tables merge key by key, other values replace).
+fn merge(base: &mut toml::Table, over: &toml::Table) {
+    for (k, v) in over {
+        match (base.get_mut(k), v) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge(b, o),
+            _ => {
+                base.insert(k.clone(), v.clone());
+            }
+        }
+    }
+}
+
+fn level_key(key: &str) -> Option<usize> {
+    key.strip_prefix("level").and_then(|n| n.parse().ok())
+}
+
+impl PyramidStage {
+    pub fn from_table(id: &str, io: StageIo, mut table: toml::Table) -> Result<Self> {
+        let subs = match table.remove("stages") {
+            Some(toml::Value::Array(a)) => parse_stage_list(a, &format!("{id}.stages"))?,
+            Some(_) => {
+                return Err(Error::config(
+                    format!("{id}.stages"),
+                    "must be an array of tables ([[stage.stages]])",
+                ))
+            }
+            None => Vec::new(),
+        };
+        let mut all_levels = toml::Table::new();
+        let mut per_level: Vec<(usize, String, toml::Table)> = Vec::new();
+        let keys: Vec<String> = table.keys().cloned().collect();
+        for key in keys {
+            if let Some(l) = level_key(&key) {
+                let Some(toml::Value::Table(t)) = table.remove(&key) else {
+                    return Err(Error::config(
+                        format!("{id}.{key}"),
+                        "must be a table of sub-stage overrides",
+                    ));
+                };
+                per_level.push((l, key, t));
+            } else if subs.iter().any(|s| s.id == key) {
+                let Some(toml::Value::Table(t)) = table.remove(&key) else {
+                    return Err(Error::config(
+                        format!("{id}.{key}"),
+                        "must be a table of parameter overrides",
+                    ));
+                };
+                all_levels.insert(key, toml::Value::Table(t));
+            }
+        }
+        let params: PyramidParams = parse_params(id, table)?;
+        params.validate().map_err(|e| e.in_context(id))?;
+        for (l, key, t) in &per_level {
+            if *l >= params.levels as usize {
+                return Err(Error::config(
+                    format!("{id}.{key}"),
+                    format!(
+                        "level {l} does not exist (levels = {}; level0 is full size)",
+                        params.levels
+                    ),
+                ));
+            }
+            if let Some(bad) = t.keys().find(|k| !subs.iter().any(|s| &s.id == *k)) {
+                return Err(Error::config(
+                    format!("{id}.{key}.{bad}"),
+                    "names no sub-stage of this pyramid",
+                ));
+            }
+        }
+        let mut levels = Vec::new();
+        for l in 0..params.levels as usize {
+            let mut built: Vec<Box<dyn Stage>> = Vec::new();
+            for sub in &subs {
+                let mut p = sub.params.clone();
+                let mut context = id.to_string();
+                if let Some(toml::Value::Table(o)) = all_levels.get(&sub.id) {
+                    merge(&mut p, o);
+                }
+                for (_, key, t) in per_level.iter().filter(|(pl, _, _)| *pl == l) {
+                    if let Some(toml::Value::Table(o)) = t.get(&sub.id) {
+                        merge(&mut p, o);
+                        context = format!("{id}.{key}");
+                    }
+                }
+                let stage = super::build(&sub.kind, &sub.id, sub.io.clone(), p)
+                    .map_err(|e| e.in_context(&context))?;
+                built.push(stage);
+            }
+            levels.push(built);
+        }
+        Ok(PyramidStage {
+            id: id.to_string(),
+            io,
+            params,
+            sub_specs: subs,
+            levels,
+        })
+    }
+
+    /// The buffer a level's result is read from: the last sub-stage's output, or the input colour.
+    fn level_output(&self) -> String {
+        self.sub_specs
+            .last()
+            .map_or_else(|| self.io.input.clone(), |s| s.io.output.clone())
+    }
+}
+
+impl Stage for PyramidStage {
+    fn id(&self) -> &str {
+        &self.id
+    }
+
+    fn requires(&self) -> Vec<String> {
+        vec![self.io.input.clone()]
+    }
+
+    fn writes(&self) -> Vec<String> {
+        // Level 0 runs in place, so its sub-stages' buffers remain afterwards.
+        let mut w: Vec<String> = self.sub_specs.iter().map(|s| s.io.output.clone()).collect();
+        w.push(self.io.output.clone());
+        w
+    }
+
+    fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
+        let (w, h) = buffers.require(&self.io.input)?.dims();
+        let wanted = self.params.levels as usize;
+        let n = pyramid::allowed_levels(w, h, wanted);
+        if n < wanted {
+            ctx.note(format!(
+                "{}: a {w}x{h} image allows {n} of the {wanted} levels asked for",
+                self.id
+            ));
+        }
+        let mask = self.params.mask.as_deref().filter(|m| buffers.contains(m));
+        if let (Some(m), None) = (&self.params.mask, mask) {
+            ctx.note(format!(
+                "{}: mask buffer `{m}` not present; REDUCE uses every pixel",
+                self.id
+            ));
+        }
+        // Coarse levels are built from the untouched input before level 0 is denoised in place.
+        let mut coarse: Vec<Buffers> = Vec::with_capacity(n.saturating_sub(1));
+        for l in 1..n {
+            let finer = if l == 1 { &*buffers } else { &coarse[l - 2] };
+            let next = pyramid::reduce_buffers(finer, &self.io.input, mask)?;
+            coarse.push(next);
+        }
+        let out_name = self.level_output();
+        let saved_level = ctx.level;
+        let mut denoised = Vec::with_capacity(n);
+        for l in 0..n {
+            ctx.level = saved_level + l as u32;
+            let level_buffers: &mut Buffers = if l == 0 {
+                &mut *buffers
+            } else {
+                &mut coarse[l - 1]
+            };
+            for stage in &self.levels[l] {
+                stage.execute(level_buffers, ctx)?;
+            }
+            denoised.push(level_buffers.require(&out_name)?.clone());
+        }
+        ctx.level = saved_level;
+        drop(coarse);
+        let out = pyramid::blend(
+            &denoised,
+            &self.params.blend,
+            self.params.domain,
+            self.params.guided,
+        )?;
+        buffers.insert(self.io.output.clone(), out)?;
+        Ok(0)
+    }
+}
