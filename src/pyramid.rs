@@ -338,15 +338,22 @@ mod tests {
                 let next = reduce(levels_imgs.last().unwrap()).unwrap();
                 levels_imgs.push(next);
             }
-            for domain in [BlendDomain::Linear, BlendDomain::Log] {
-                let out = blend(&levels_imgs, &[], domain).unwrap();
+            for (domain, guided) in [
+                (BlendDomain::Linear, false),
+                (BlendDomain::Log, false),
+                (BlendDomain::Log, true),
+            ] {
+                let out = blend(&levels_imgs, &[], domain, guided).unwrap();
                 let max_rel = out
                     .data()
                     .iter()
                     .zip(img.data())
                     .map(|(a, b)| ((a - b) / b.abs().max(1e-6)).abs())
                     .fold(0.0f32, f32::max);
-                assert!(max_rel < 1e-5, "{w}x{h} {domain:?}: {max_rel}");
+                assert!(
+                    max_rel < 1e-5,
+                    "{w}x{h} {domain:?} guided {guided}: {max_rel}"
+                );
             }
         }
     }
