@@ -32,6 +32,22 @@ pub enum Command {
     Eval(EvalArgs),
     /// List the named pipelines.
     Pipelines,
+    /// Run a pipeline and variants of it (each stage removed, each feature weight zeroed, plain SID) and score them.
+    Ablate(AblateArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct AblateArgs {
+    /// Render set folder.
+    pub dir: PathBuf,
+    #[command(flatten)]
+    pub run: RunOptions,
+    /// Reference image (default: reference.exr in the folder or one level up).
+    #[arg(long, short)]
+    pub reference: Option<PathBuf>,
+    /// Also write the table as CSV (`.csv`) or JSON (`.json`).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
 }
 
 /// Options shared by every command that runs a pipeline.
@@ -126,6 +142,7 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Denoise(args) => denoise(&args, cli.quiet),
         Command::Eval(args) => eval(&args),
+        Command::Ablate(args) => ablate(&args, cli.quiet),
         Command::Pipelines => {
             list_pipelines();
             Ok(())
@@ -202,6 +219,60 @@ fn denoise(args: &DenoiseArgs, quiet: bool) -> Result<()> {
             report.seconds,
             steps as f64 / 1e6
         );
+    }
+    Ok(())
+}
+
+/// The reference for scoring a render set: `--reference`, else the one FORMATS.md places.
+fn reference_for(set: &io::RenderSet, given: Option<&PathBuf>) -> Result<crate::image::Image> {
+    let path = given
+        .cloned()
+        .or_else(|| set.reference.clone())
+        .ok_or_else(|| {
+            Error::file(
+                set.dir.join("reference.exr"),
+                "no reference found (here or one level up); pass --reference",
+            )
+        })?;
+    let reference = io::read_image(&path, 3)?;
+    if Some(reference.dims()) != set.buffers.dims() {
+        return Err(Error::file(&path, "does not have the render set's size"));
+    }
+    Ok(reference)
+}
+
+/// Output file for a table: `.csv` or `.json`, reserved before the work starts.
+fn table_output(path: &Path) -> Result<(PendingOutput, bool)> {
+    let json = match path.extension().and_then(|e| e.to_str()) {
+        Some("json") => true,
+        Some("csv") => false,
+        _ => return Err(Error::output(path, "must end in .csv or .json")),
+    };
+    Ok((PendingOutput::create(path)?, json))
+}
+
+fn ablate(args: &AblateArgs, quiet: bool) -> Result<()> {
+    let spec = args.run.spec()?;
+    spec.build()?;
+    let variants = crate::ablate::variants(&spec)?;
+    let set = io::load_render_set(&args.dir)?;
+    let reference = reference_for(&set, args.reference.as_ref())?;
+    let pending = args.out.as_deref().map(table_output).transpose()?;
+    let progress = crate::progress::Progress::new(!quiet, "ablate", variants.len() as u64);
+    let rows = args.run.in_pool(|| {
+        crate::ablate::run(&variants, &set.buffers, &reference, args.run.seed, &|_| {
+            progress.inc(1)
+        })
+    })??;
+    progress.finish();
+    print!("{}", crate::ablate::table(&rows));
+    if let Some((pending, json)) = pending {
+        let text = if json {
+            serde_json::to_string_pretty(&rows).map_err(|e| Error::Runtime(e.to_string()))?
+        } else {
+            crate::ablate::csv(&rows)
+        };
+        pending.write_bytes(text.as_bytes())?;
     }
     Ok(())
 }

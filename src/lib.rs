@@ -2,6 +2,7 @@
 //!
 //! See README.md for the module map. The maths is in ALGORITHM.md of the project's shared notes.
 
+pub mod ablate;
 pub mod buffers;
 pub mod cli;
 pub mod error;

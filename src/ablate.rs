@@ -1,0 +1,159 @@
+//! `gsid ablate`: what does each stage and each feature buy?
+//!
+//! Runs a pipeline, then variants of it: each top-level stage removed in turn (a pyramid is
+//! "removed" by running its sub-stages at full size only), each of the eight feature weights zeroed in
+//! every gsid stage, and plain SID; scores each against the reference.
+
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::buffers::Buffers;
+use crate::error::Result;
+use crate::features::Weights;
+use crate::image::Image;
+use crate::metrics;
+use crate::pipeline::PipelineSpec;
+
+/// One row of the ablation table.
+#[derive(Clone, Debug, Serialize)]
+pub struct Row {
+    pub variant: String,
+    pub ssim: f64,
+    pub psnr: f64,
+    pub relmse: f64,
+    pub seconds: f64,
+    /// SSIM minus the full pipeline's SSIM.
+    pub delta_ssim: f64,
+}
+
+/// A named variant of the pipeline under study.
+pub struct Variant {
+    pub name: String,
+    pub spec: PipelineSpec,
+}
+
+/// `--set` paths that reach every gsid stage of `spec` (top level, or inside a pyramid).
+fn gsid_paths(spec: &PipelineSpec) -> Vec<String> {
+    let mut paths = Vec::new();
+    for s in &spec.stages {
+        match s.kind.as_str() {
+            "gsid" => paths.push(s.id.clone()),
+            "pyramid" => {
+                if let Some(toml::Value::Array(subs)) = s.params.get("stages") {
+                    for sub in subs {
+                        let kind = sub.get("kind").and_then(|k| k.as_str());
+                        if kind == Some("gsid") {
+                            let id = sub.get("id").and_then(|i| i.as_str()).unwrap_or("gsid");
+                            paths.push(format!("{}.{id}", s.id));
+                        }
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    paths
+}
+
+/// The variants `ablate` runs, the full pipeline first.
+pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
+    let mut out = vec![Variant {
+        name: format!("full ({})", spec.name),
+        spec: spec.clone(),
+    }];
+    if spec.stages.len() > 1 || spec.stages.iter().any(|s| s.kind == "pyramid") {
+        for (i, stage) in spec.stages.iter().enumerate() {
+            let mut v = spec.clone();
+            let name = if stage.kind == "pyramid" {
+                // One level: the sub-stages at full size, with only the overrides that apply there.
+                v.stages[i]
+                    .params
+                    .retain(|k, _| !(k.starts_with("level") && k != "levels" && k != "level0"));
+                v.apply_set(&format!("{}.levels=1", stage.id))?;
+                format!("without {} (single scale)", stage.id)
+            } else if spec.stages.len() > 1 {
+                v.stages.remove(i);
+                format!("without {}", stage.id)
+            } else {
+                continue;
+            };
+            out.push(Variant { name, spec: v });
+        }
+    }
+    let paths = gsid_paths(spec);
+    if !paths.is_empty() {
+        for name in Weights::NAMES {
+            let mut v = spec.clone();
+            for p in &paths {
+                v.apply_set(&format!("{p}.weights.{name}=0.0"))?;
+            }
+            out.push(Variant {
+                name: format!("weight {name} = 0"),
+                spec: v,
+            });
+        }
+    }
+    out.push(Variant {
+        name: "plain SID".into(),
+        spec: PipelineSpec::resolve("sid")?,
+    });
+    Ok(out)
+}
+
+/// Runs every variant on a copy of `buffers` and scores it against `reference`.
+pub fn run(
+    variants: &[Variant],
+    buffers: &Buffers,
+    reference: &Image,
+    seed: u64,
+    on_variant: &dyn Fn(&str),
+) -> Result<Vec<Row>> {
+    let mut rows: Vec<Row> = Vec::new();
+    for v in variants {
+        on_variant(&v.name);
+        let pipeline = v.spec.build()?;
+        let mut b = buffers.clone();
+        let start = Instant::now();
+        let (out, _) = pipeline.run(&mut b, seed, false)?;
+        let seconds = start.elapsed().as_secs_f64();
+        let s = metrics::score(&out, reference)?;
+        let base = rows.first().map_or(s.ssim, |r| r.ssim);
+        rows.push(Row {
+            variant: v.name.clone(),
+            ssim: s.ssim,
+            psnr: s.psnr,
+            relmse: s.relmse,
+            seconds,
+            delta_ssim: s.ssim - base,
+        });
+    }
+    Ok(rows)
+}
+
+/// The table as text, one row per variant.
+pub fn table(rows: &[Row]) -> String {
+    let mut t = format!(
+        "{:<34} {:>7} {:>8} {:>9} {:>8} {:>8}\n",
+        "variant", "SSIM", "PSNR", "relMSE", "seconds", "ΔSSIM"
+    );
+    for r in rows {
+        t += &format!(
+            "{:<34} {:>7.4} {:>8.2} {:>9.5} {:>8.3} {:>+8.4}\n",
+            r.variant, r.ssim, r.psnr, r.relmse, r.seconds, r.delta_ssim
+        );
+    }
+    t
+}
+
+/// The rows as CSV.
+pub fn csv(rows: &[Row]) -> String {
+    let mut t = String::from("variant,ssim,psnr,relmse,seconds,delta_ssim\n");
+    for r in rows {
+        t += &format!(
+            "\"{}\",{},{},{},{},{}\n",
+            r.variant, r.ssim, r.psnr, r.relmse, r.seconds, r.delta_ssim
+        );
+    }
+    t
+}
