@@ -23,7 +23,9 @@ fn main() {
     for (name, _) in &set.files {
         let img = set.buffers.get(name).unwrap();
         let (w, h) = img.dims();
-        let tiled = Image::from_fn(w * n, h * n, img.channels(), |x, y, c| img.at(x % w, y % h)[c]);
+        let tiled = Image::from_fn(w * n, h * n, img.channels(), |x, y, c| {
+            img.at(x % w, y % h)[c]
+        });
         io::write_exr(&dst.join(format!("{name}.exr")), &tiled).expect("write");
     }
     if let Some(reference) = &set.reference {

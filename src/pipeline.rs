@@ -34,6 +34,10 @@ pub const DEFAULT_PIPELINE: &str = "gsid";
 pub const BUILTIN: &[(&str, &str)] = &[
     ("sid", include_str!("../pipelines/sid.toml")),
     ("gsid", include_str!("../pipelines/gsid.toml")),
+    (
+        "gsid-outlier",
+        include_str!("../pipelines/gsid-outlier.toml"),
+    ),
 ];
 
 /// One stage as written in the file.

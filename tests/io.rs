@@ -8,22 +8,40 @@ use gsid::{io, Image};
 use proptest::prelude::*;
 
 fn write_channels(path: &Path, w: usize, h: usize, channels: Vec<(&str, FlatSamples)>) {
-    let list: SmallVec<[AnyChannel<FlatSamples>; 4]> =
-        channels.into_iter().map(|(n, s)| AnyChannel::new(n, s)).collect();
-    let layer = Layer::new((w, h), LayerAttributes::default(), Encoding::FAST_LOSSLESS, AnyChannels::sort(list));
-    exr::prelude::Image::from_layer(layer).write().to_file(path).unwrap();
+    let list: SmallVec<[AnyChannel<FlatSamples>; 4]> = channels
+        .into_iter()
+        .map(|(n, s)| AnyChannel::new(n, s))
+        .collect();
+    let layer = Layer::new(
+        (w, h),
+        LayerAttributes::default(),
+        Encoding::FAST_LOSSLESS,
+        AnyChannels::sort(list),
+    );
+    exr::prelude::Image::from_layer(layer)
+        .write()
+        .to_file(path)
+        .unwrap();
 }
 
 #[test]
 fn half_float_exr_reads_as_f32() {
     let tmp = tempfile::tempdir().unwrap();
     let path = tmp.path().join("half.exr");
-    let vals = |o: f32| (0..6).map(|i| f16::from_f32(i as f32 * 0.25 + o)).collect::<Vec<_>>();
+    let vals = |o: f32| {
+        (0..6)
+            .map(|i| f16::from_f32(i as f32 * 0.25 + o))
+            .collect::<Vec<_>>()
+    };
     write_channels(
         &path,
         3,
         2,
-        vec![("R", FlatSamples::F16(vals(0.0))), ("G", FlatSamples::F16(vals(1.0))), ("B", FlatSamples::F16(vals(2.0)))],
+        vec![
+            ("R", FlatSamples::F16(vals(0.0))),
+            ("G", FlatSamples::F16(vals(1.0))),
+            ("B", FlatSamples::F16(vals(2.0))),
+        ],
     );
     let img = io::read_image(&path, 3).unwrap();
     assert_eq!(img.dims(), (3, 2));
@@ -57,7 +75,9 @@ fn layer_prefixed_and_single_channel_names_are_found() {
 #[test]
 fn written_exr_round_trips_bit_exactly() {
     let tmp = tempfile::tempdir().unwrap();
-    let img = Image::from_fn(5, 3, 3, |x, y, c| (x as f32 - 2.0) * 1e-3 + y as f32 * 1e4 + c as f32);
+    let img = Image::from_fn(5, 3, 3, |x, y, c| {
+        (x as f32 - 2.0) * 1e-3 + y as f32 * 1e4 + c as f32
+    });
     let path = tmp.path().join("rt.exr");
     io::write_exr(&path, &img).unwrap();
     assert_eq!(io::read_image(&path, 3).unwrap(), img);
@@ -70,7 +90,10 @@ fn written_exr_round_trips_bit_exactly() {
 fn png_colour_is_decoded_from_srgb() {
     let tmp = tempfile::tempdir().unwrap();
     let path = tmp.path().join("c.png");
-    image::RgbImage::from_raw(1, 1, vec![255, 128, 0]).unwrap().save(&path).unwrap();
+    image::RgbImage::from_raw(1, 1, vec![255, 128, 0])
+        .unwrap()
+        .save(&path)
+        .unwrap();
     let img = io::read_image(&path, 3).unwrap();
     assert!((img.pixel(0)[0] - 1.0).abs() < 1e-6);
     assert!((img.pixel(0)[1] - 0.2158605).abs() < 1e-5);
