@@ -488,17 +488,24 @@ mod tests {
 
     #[test]
     fn feature_rule_gates_on_albedo() {
-        // A bright surface strip next to a dark one: not an outlier once albedo says so.
+        // A bright surface strip next to a dark one is not an outlier; a firefly on the dark one is.
         let (w, h) = (7, 7);
-        let img = Image::from_fn(w, h, 3, |x, _, _| if x == 3 { 20.0 } else { 0.1 });
+        let img = Image::from_fn(w, h, 3, |x, y, _| match (x, y) {
+            (5, 5) => 20.0,
+            (3, _) => 20.0,
+            _ => 0.1,
+        });
         let albedo = Image::from_fn(w, h, 3, |x, _, _| if x == 3 { 0.9 } else { 0.1 });
         let guides = Guides {
             albedo: Some(&albedo),
             normal: None,
         };
         let p = params(Rule::Feature);
-        assert_eq!(detect(&img, &guides, &p).count(), 0);
-        assert!(detect(&img, &Guides::default(), &p).count() > 0);
+        let d = detect(&img, &guides, &p);
+        assert!(d.mask[5 * w + 5]);
+        // Strip ends at the border have one same-surface neighbour, too few: they fall back to all.
+        assert!((1..h - 1).all(|y| !d.mask[y * w + 3]));
+        assert_eq!(d.count(), 3);
     }
 
     #[test]
