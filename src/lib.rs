@@ -10,6 +10,7 @@ pub mod features;
 pub mod image;
 pub mod io;
 pub mod metrics;
+pub mod outlier;
 pub mod pipeline;
 pub mod progress;
 pub mod pyramid;

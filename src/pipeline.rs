@@ -28,13 +28,18 @@ use crate::stages::{self, Context, Stage, StageIo, StageReport};
 /// The buffer a pipeline's result is read from.
 pub const OUTPUT_BUFFER: &str = "out";
 /// The pipeline `gsid denoise` runs without `--pipeline`.
-pub const DEFAULT_PIPELINE: &str = "gsid";
+pub const DEFAULT_PIPELINE: &str = "full";
 
 /// Pipelines built into the binary, so they work from any folder.
 pub const BUILTIN: &[(&str, &str)] = &[
     ("sid", include_str!("../pipelines/sid.toml")),
     ("gsid", include_str!("../pipelines/gsid.toml")),
+    (
+        "gsid-outlier",
+        include_str!("../pipelines/gsid-outlier.toml"),
+    ),
     ("pyramid", include_str!("../pipelines/pyramid.toml")),
+    ("full", include_str!("../pipelines/full.toml")),
 ];
 
 /// One stage as written in the file.

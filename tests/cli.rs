@@ -80,31 +80,59 @@ fn same_seed_same_bits_on_one_and_two_threads() {
     );
 }
 
+/// The "N M walk steps" figure of a denoise run's summary line.
+fn walk_steps(out: &std::process::Output) -> f64 {
+    let err = stderr(out);
+    let before = err.split(" M walk steps").next().unwrap();
+    before.rsplit(' ').next().unwrap().parse().unwrap()
+}
+
 #[test]
 fn set_overrides_reach_the_stage() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("o.exr");
-    let run = gsid(&[
+    let o = out.to_str().unwrap();
+    let set4 = "fixtures/mitsuba-cornell/spp4";
+    let base = gsid(&["denoise", set4, "-p", "gsid", "-o", o]);
+    let one = gsid(&[
         "denoise",
-        "fixtures/mitsuba-cornell/spp4",
+        set4,
+        "-p",
+        "gsid",
         "-o",
-        out.to_str().unwrap(),
+        o,
         "--set",
         "gsid.walks=1",
         "--set",
         "gsid.weights.depth=0",
     ]);
-    assert!(run.status.success(), "{}", stderr(&run));
-    assert!(stderr(&run).contains("0.1 M walk steps") || stderr(&run).contains("walk steps"));
+    assert!(
+        base.status.success() && one.status.success(),
+        "{}",
+        stderr(&one)
+    );
+    assert!(
+        walk_steps(&one) < walk_steps(&base) / 10.0,
+        "{} vs {}",
+        walk_steps(&one),
+        walk_steps(&base)
+    );
+    let nested = gsid(&["denoise", set4, "-o", o, "--set", "pyramid.gsid.walks=1"]);
+    let default = gsid(&["denoise", set4, "-o", o]);
+    assert!(walk_steps(&nested) < walk_steps(&default) / 10.0);
     let bad = gsid(&[
         "denoise",
-        "fixtures/mitsuba-cornell/spp4",
+        set4,
+        "-p",
+        "gsid",
         "-o",
-        out.to_str().unwrap(),
+        o,
         "--set",
         "gsid.walks=0",
     ]);
     assert_bad_input(&bad, "gsid.walks");
+    let bad = gsid(&["denoise", set4, "-o", o, "--set", "gsid.walks=3"]);
+    assert_bad_input(&bad, "no stage `gsid`");
 }
 
 #[test]

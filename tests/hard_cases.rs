@@ -23,7 +23,7 @@ fn assert_finite(img: &Image, what: &str) {
     );
 }
 
-const PIPELINES: [&str; 2] = ["gsid", "sid"];
+const PIPELINES: [&str; 5] = ["gsid", "sid", "gsid-outlier", "pyramid", "full"];
 
 #[test]
 fn tiny_and_huge_sigma_stay_finite() {
@@ -31,7 +31,12 @@ fn tiny_and_huge_sigma_stay_finite() {
         for sigma in ["1e-4", "1e4", "1e-6", "1e6"] {
             let mut b = synthetic_set(16, 12);
             let input = b.get("color").unwrap().clone();
-            let out = run(p, &[&format!("gsid.sigma={sigma}")], &mut b);
+            let key = if p == "pyramid" || p == "full" {
+                "pyramid.gsid.sigma"
+            } else {
+                "gsid.sigma"
+            };
+            let out = run(p, &[&format!("{key}={sigma}")], &mut b);
             assert_finite(&out, &format!("{p} sigma {sigma}"));
             let mean_in = input.channel_means().iter().sum::<f64>();
             let mean_out = out.channel_means().iter().sum::<f64>();
@@ -117,6 +122,33 @@ fn a_single_pixel_comes_back_as_itself() {
         Image::from_vec(1, 1, 3, vec![0.1, 0.2, 0.3]).unwrap(),
     )
     .unwrap();
-    let out = run("gsid", &[], &mut b);
-    assert_eq!(out.data(), &[0.1, 0.2, 0.3]);
+    for p in PIPELINES {
+        let out = run(p, &[], &mut b.clone());
+        let close = out
+            .data()
+            .iter()
+            .zip([0.1f32, 0.2, 0.3])
+            .all(|(a, b)| (a - b).abs() <= 1e-6);
+        assert!(close, "{p}: {:?}", out.data());
+    }
+}
+
+#[test]
+fn full_pipeline_is_identical_on_one_and_two_threads() {
+    let spec = PipelineSpec::resolve("full").unwrap();
+    let pipeline = spec.build().unwrap();
+    let run_on = |threads| {
+        let mut b = synthetic_set(40, 29);
+        b.get_mut("color")
+            .unwrap()
+            .pixel_mut(100)
+            .copy_from_slice(&[1e6; 3]);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let out = pool.install(|| pipeline.run(&mut b, 9, false).unwrap().0);
+        out.data().iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+    };
+    assert_eq!(run_on(1), run_on(2));
 }

@@ -43,3 +43,43 @@ fn gsid_beats_sid_beats_input_at_16_and_64_spp() {
         }
     }
 }
+
+fn scores_of(pipeline: &str, spp: u32) -> metrics::Scores {
+    let dir = format!("fixtures/mitsuba-cornell/spp{spp}");
+    let mut set = io::load_render_set(Path::new(&dir)).unwrap();
+    let reference = io::read_image(set.reference.as_ref().unwrap(), 3).unwrap();
+    let out = PipelineSpec::resolve(pipeline)
+        .unwrap()
+        .build()
+        .unwrap()
+        .run(&mut set.buffers, 0, false)
+        .unwrap()
+        .0;
+    metrics::score(&out, &reference).unwrap()
+}
+
+#[test]
+fn full_beats_single_scale_gsid_at_very_low_spp_and_holds_at_64() {
+    for spp in [1, 4] {
+        let (full, gsid) = (scores_of("full", spp), scores_of("gsid", spp));
+        assert!(
+            full.ssim > gsid.ssim,
+            "spp{spp}: SSIM full {:.4} vs gsid {:.4}",
+            full.ssim,
+            gsid.ssim
+        );
+        assert!(
+            full.relmse < gsid.relmse,
+            "spp{spp}: relMSE full {:.5} vs gsid {:.5}",
+            full.relmse,
+            gsid.relmse
+        );
+    }
+    let (full, gsid) = (scores_of("full", 64), scores_of("gsid", 64));
+    assert!(
+        full.ssim >= gsid.ssim - 0.005,
+        "spp64: SSIM full {:.4} vs gsid {:.4}",
+        full.ssim,
+        gsid.ssim
+    );
+}

@@ -5,6 +5,7 @@
 //! parsed with `deny_unknown_fields` so a misspelled key is an error that names it.
 
 pub mod gsid;
+pub mod outlier;
 pub mod pyramid;
 
 use std::time::Instant;
@@ -97,12 +98,13 @@ pub trait Stage: Send + Sync {
 }
 
 /// The stage kinds gsid knows, for error messages.
-pub const KINDS: &[&str] = &["gsid", "pyramid"];
+pub const KINDS: &[&str] = &["gsid", "outlier", "pyramid"];
 
 /// Builds a stage of `kind` from its parameter table.
 pub fn build(kind: &str, id: &str, io: StageIo, params: toml::Table) -> Result<Box<dyn Stage>> {
     match kind {
         "gsid" => Ok(Box::new(gsid::GsidStage::from_table(id, io, params)?)),
+        "outlier" => Ok(Box::new(outlier::OutlierStage::from_table(id, io, params)?)),
         "pyramid" => Ok(Box::new(pyramid::PyramidStage::from_table(id, io, params)?)),
         other => Err(Error::config(
             format!("{id}.kind"),
