@@ -9,8 +9,13 @@ use crate::error::{Error, Result};
 use crate::image::Image;
 
 /// The feature buffers a renderer may write, with their channel counts (ALGORITHM.md §1).
-pub const FEATURE_BUFFERS: [(&str, usize); 5] =
-    [("albedo", 3), ("normal", 3), ("material", 3), ("shadow", 1), ("depth", 1)];
+pub const FEATURE_BUFFERS: [(&str, usize); 5] = [
+    ("albedo", 3),
+    ("normal", 3),
+    ("material", 3),
+    ("shadow", 1),
+    ("depth", 1),
+];
 
 #[derive(Clone, Debug, Default)]
 pub struct Buffers {
@@ -35,7 +40,11 @@ impl Buffers {
             if image.dims() != (w, h) && !only_self {
                 return Err(Error::buffer(
                     name,
-                    format!("is {}x{} but the other buffers are {w}x{h}", image.width(), image.height()),
+                    format!(
+                        "is {}x{} but the other buffers are {w}x{h}",
+                        image.width(),
+                        image.height()
+                    ),
                 ));
             }
         }
@@ -53,7 +62,8 @@ impl Buffers {
 
     /// The buffer, or an error naming it.
     pub fn require(&self, name: &str) -> Result<&Image> {
-        self.get(name).ok_or_else(|| Error::buffer(name, "is required but missing"))
+        self.get(name)
+            .ok_or_else(|| Error::buffer(name, "is required but missing"))
     }
 
     /// The buffer if present with the expected channel count.

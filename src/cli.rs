@@ -7,7 +7,11 @@ use clap::{Parser, Subcommand};
 use crate::error::{Error, Result};
 
 #[derive(Parser, Debug)]
-#[command(name = "gsid", version, about = "Feature-guided stochastic denoising for path-traced renders")]
+#[command(
+    name = "gsid",
+    version,
+    about = "Feature-guided stochastic denoising for path-traced renders"
+)]
 pub struct Cli {
     /// Silence the progress bar and notes on stderr.
     #[arg(long, short, global = true)]
@@ -24,6 +28,8 @@ pub enum Command {
     Eval(EvalArgs),
     /// List the named pipelines.
     Pipelines,
+    /// Render a scene file into a render set (fixture renderer).
+    Render(crate::render::RenderArgs),
 }
 
 #[derive(clap::Args, Debug)]
@@ -80,6 +86,7 @@ pub fn main() -> i32 {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
+        Command::Render(args) => crate::render::run(&args, cli.quiet),
         Command::Denoise(_) | Command::Eval(_) | Command::Pipelines => {
             Err(Error::Runtime("command under construction".into()))
         }

@@ -29,19 +29,31 @@ pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 impl Error {
     pub fn file(path: impl AsRef<Path>, msg: impl std::fmt::Display) -> Self {
-        Error::File { path: path.as_ref().to_path_buf(), msg: msg.to_string() }
+        Error::File {
+            path: path.as_ref().to_path_buf(),
+            msg: msg.to_string(),
+        }
     }
 
     pub fn buffer(name: impl Into<String>, msg: impl std::fmt::Display) -> Self {
-        Error::Buffer { name: name.into(), msg: msg.to_string() }
+        Error::Buffer {
+            name: name.into(),
+            msg: msg.to_string(),
+        }
     }
 
     pub fn config(key: impl Into<String>, msg: impl std::fmt::Display) -> Self {
-        Error::Config { key: key.into(), msg: msg.to_string() }
+        Error::Config {
+            key: key.into(),
+            msg: msg.to_string(),
+        }
     }
 
     pub fn output(path: impl AsRef<Path>, msg: impl std::fmt::Display) -> Self {
-        Error::Output { path: path.as_ref().to_path_buf(), msg: msg.to_string() }
+        Error::Output {
+            path: path.as_ref().to_path_buf(),
+            msg: msg.to_string(),
+        }
     }
 
     /// Process exit code, as FORMATS.md fixes it: 2 for bad usage or input, 1 for runtime failures.
@@ -55,7 +67,10 @@ impl Error {
     /// Prefix a config error's key with its context (e.g. the stage id), keeping other errors as they are.
     pub fn in_context(self, prefix: &str) -> Self {
         match self {
-            Error::Config { key, msg } => Error::Config { key: format!("{prefix}.{key}"), msg },
+            Error::Config { key, msg } => Error::Config {
+                key: format!("{prefix}.{key}"),
+                msg,
+            },
             other => other,
         }
     }

@@ -21,7 +21,12 @@ impl Image {
     }
 
     pub fn filled(width: usize, height: usize, channels: usize, value: f32) -> Self {
-        Image { width, height, channels, data: vec![value; width * height * channels] }
+        Image {
+            width,
+            height,
+            channels,
+            data: vec![value; width * height * channels],
+        }
     }
 
     /// Wraps interleaved data; fails if its length does not match the shape.
@@ -32,11 +37,21 @@ impl Image {
                 data.len()
             )));
         }
-        Ok(Image { width, height, channels, data })
+        Ok(Image {
+            width,
+            height,
+            channels,
+            data,
+        })
     }
 
     /// Builds an image by calling `f(x, y, c)` for every sample.
-    pub fn from_fn(width: usize, height: usize, channels: usize, mut f: impl FnMut(usize, usize, usize) -> f32) -> Self {
+    pub fn from_fn(
+        width: usize,
+        height: usize,
+        channels: usize,
+        mut f: impl FnMut(usize, usize, usize) -> f32,
+    ) -> Self {
         let mut data = Vec::with_capacity(width * height * channels);
         for y in 0..height {
             for x in 0..width {
@@ -45,7 +60,12 @@ impl Image {
                 }
             }
         }
-        Image { width, height, channels, data }
+        Image {
+            width,
+            height,
+            channels,
+            data,
+        }
     }
 
     pub fn width(&self) -> usize {

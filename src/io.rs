@@ -18,11 +18,18 @@ use crate::image::Image;
 /// EXR channels are matched on the last dotted component of their names, so Blender-style
 /// `ViewLayer.Combined.R` works as well as `R`. One-channel reads accept `Y`, `Z`, `R`, or a file's only channel.
 pub fn read_image(path: &Path, channels: usize) -> Result<Image> {
-    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
     match ext.as_str() {
         "exr" => read_exr(path, channels),
         "png" | "jpg" | "jpeg" => read_ldr(path, channels),
-        _ => Err(Error::file(path, "unsupported image format (expected .exr, .png or .jpg)")),
+        _ => Err(Error::file(
+            path,
+            "unsupported image format (expected .exr, .png or .jpg)",
+        )),
     }
 }
 
@@ -47,7 +54,8 @@ fn read_exr(path: &Path, channels: usize) -> Result<Image> {
     };
     let find = |wanted: &[&str]| {
         wanted.iter().find_map(|want| {
-            list.iter().find(|ch| short(&ch.name.to_string()).eq_ignore_ascii_case(want))
+            list.iter()
+                .find(|ch| short(&ch.name.to_string()).eq_ignore_ascii_case(want))
         })
     };
     let picked: Vec<_> = if channels == 3 {
@@ -59,7 +67,10 @@ fn read_exr(path: &Path, channels: usize) -> Result<Image> {
             _ if list.len() == 1 => vec![&list[0]; 3],
             _ => {
                 let names: Vec<String> = list.iter().map(|c| c.name.to_string()).collect();
-                return Err(Error::file(path, format!("has no R, G, B channels (found: {})", names.join(", "))));
+                return Err(Error::file(
+                    path,
+                    format!("has no R, G, B channels (found: {})", names.join(", ")),
+                ));
             }
         }
     } else {
@@ -68,11 +79,17 @@ fn read_exr(path: &Path, channels: usize) -> Result<Image> {
             None if list.len() == 1 => vec![&list[0]],
             None => {
                 let names: Vec<String> = list.iter().map(|c| c.name.to_string()).collect();
-                return Err(Error::file(path, format!("has no Y, Z or R channel (found: {})", names.join(", "))));
+                return Err(Error::file(
+                    path,
+                    format!("has no Y, Z or R channel (found: {})", names.join(", ")),
+                ));
             }
         }
     };
-    let planes: Vec<Vec<f32>> = picked.iter().map(|c| c.sample_data.values_as_f32().collect()).collect();
+    let planes: Vec<Vec<f32>> = picked
+        .iter()
+        .map(|c| c.sample_data.values_as_f32().collect())
+        .collect();
     let mut data = Vec::with_capacity(w * h * channels);
     for i in 0..w * h {
         for plane in &planes {
@@ -83,14 +100,18 @@ fn read_exr(path: &Path, channels: usize) -> Result<Image> {
 }
 
 fn read_ldr(path: &Path, channels: usize) -> Result<Image> {
-    let img = image::open(path).map_err(|e| Error::file(path, format!("cannot decode image ({e})")))?;
+    let img =
+        image::open(path).map_err(|e| Error::file(path, format!("cannot decode image ({e})")))?;
     let rgb = img.to_rgb8();
     let (w, h) = (rgb.width() as usize, rgb.height() as usize);
     let lut: Vec<f32> = (0..256).map(|v| srgb_to_linear(v as f32 / 255.0)).collect();
     let data: Vec<f32> = if channels == 3 {
         rgb.as_raw().iter().map(|&v| lut[v as usize]).collect()
     } else {
-        rgb.as_raw().chunks_exact(3).map(|p| lut[p[0] as usize]).collect()
+        rgb.as_raw()
+            .chunks_exact(3)
+            .map(|p| lut[p[0] as usize])
+            .collect()
     };
     Image::from_vec(w, h, channels, data).map_err(|e| Error::file(path, e))
 }
@@ -129,14 +150,20 @@ impl PendingOutput {
             return Err(Error::output(path, "is a directory"));
         }
         if !dir.is_dir() {
-            return Err(Error::output(path, format!("folder {} does not exist", dir.display())));
+            return Err(Error::output(
+                path,
+                format!("folder {} does not exist", dir.display()),
+            ));
         }
         let tmp = tempfile::Builder::new()
             .prefix(".gsid-")
             .suffix(".tmp")
             .tempfile_in(&dir)
             .map_err(|e| Error::output(path, e))?;
-        Ok(PendingOutput { path: path.to_path_buf(), tmp })
+        Ok(PendingOutput {
+            path: path.to_path_buf(),
+            tmp,
+        })
     }
 
     pub fn path(&self) -> &Path {
@@ -150,7 +177,12 @@ impl PendingOutput {
             1 => &["Y"],
             3 => &["R", "G", "B"],
             4 => &["R", "G", "B", "A"],
-            _ => return Err(Error::output(&self.path, format!("cannot write a {c}-channel image as EXR"))),
+            _ => {
+                return Err(Error::output(
+                    &self.path,
+                    format!("cannot write a {c}-channel image as EXR"),
+                ))
+            }
         };
         let channels: exrp::SmallVec<[exrp::AnyChannel<exrp::FlatSamples>; 4]> = names
             .iter()
@@ -173,7 +205,11 @@ impl PendingOutput {
         );
         let out = exrp::Image::from_layer(layer);
         {
-            let file = self.tmp.as_file().try_clone().map_err(|e| Error::output(&self.path, e))?;
+            let file = self
+                .tmp
+                .as_file()
+                .try_clone()
+                .map_err(|e| Error::output(&self.path, e))?;
             let mut writer = BufWriter::new(file);
             out.write()
                 .to_buffered(&mut writer)
@@ -188,7 +224,8 @@ impl PendingOutput {
     pub fn write_bytes(self, bytes: &[u8]) -> Result<()> {
         use std::io::Write;
         let mut file = self.tmp.as_file();
-        file.write_all(bytes).map_err(|e| Error::output(&self.path, e))?;
+        file.write_all(bytes)
+            .map_err(|e| Error::output(&self.path, e))?;
         self.commit()
     }
 
@@ -232,7 +269,10 @@ pub fn load_render_set(dir: &Path) -> Result<RenderSet> {
     let color_path = find_buffer_file(dir, "color")
         .ok_or_else(|| Error::file(dir.join("color.exr"), "required buffer `color` not found"))?;
     if color_path.extension().is_some_and(|e| e != "exr") {
-        notes.push(format!("{}: 8-bit colour is not HDR; highlights are clipped", color_path.display()));
+        notes.push(format!(
+            "{}: 8-bit colour is not HDR; highlights are clipped",
+            color_path.display()
+        ));
     }
     let color = read_image(&color_path, 3)?;
     let (w, h) = color.dims();
@@ -260,10 +300,19 @@ pub fn load_render_set(dir: &Path) -> Result<RenderSet> {
         files.push((name.to_string(), path));
     }
     if !missing.is_empty() {
-        notes.push(format!("missing buffers (their features are off): {}", missing.join(", ")));
+        notes.push(format!(
+            "missing buffers (their features are off): {}",
+            missing.join(", ")
+        ));
     }
     let reference = find_reference(dir);
-    Ok(RenderSet { dir: dir.to_path_buf(), buffers, files, reference, notes })
+    Ok(RenderSet {
+        dir: dir.to_path_buf(),
+        buffers,
+        files,
+        reference,
+        notes,
+    })
 }
 
 /// The converged reference of a render set: `reference.exr` in the folder or one level up.
@@ -272,5 +321,7 @@ pub fn find_reference(dir: &Path) -> Option<PathBuf> {
     if here.is_file() {
         return Some(here);
     }
-    dir.parent().map(|p| p.join("reference.exr")).filter(|p| p.is_file())
+    dir.parent()
+        .map(|p| p.join("reference.exr"))
+        .filter(|p| p.is_file())
 }

@@ -7,6 +7,7 @@ pub mod cli;
 pub mod error;
 pub mod image;
 pub mod io;
+pub mod render;
 
 pub use crate::buffers::Buffers;
 pub use crate::error::{Error, Result};
