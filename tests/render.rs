@@ -28,7 +28,12 @@ fn draw(scene: &Scene, spp: u32, seed: u64, effects: EffectSet) -> RenderResult 
 /// mean over pixels and channels of (x − r)² / (r² + 0.01).
 fn rel_mse(x: &Image, r: &Image) -> f64 {
     let n = x.data().len() as f64;
-    x.data().iter().zip(r.data()).map(|(&a, &b)| ((a - b) as f64).powi(2) / ((b as f64).powi(2) + 0.01)).sum::<f64>() / n
+    x.data()
+        .iter()
+        .zip(r.data())
+        .map(|(&a, &b)| ((a - b) as f64).powi(2) / ((b as f64).powi(2) + 0.01))
+        .sum::<f64>()
+        / n
 }
 
 fn mean(x: &Image) -> f64 {
@@ -52,7 +57,11 @@ fn block_mean(x: &Image, b: usize) -> Image {
 #[test]
 fn agrees_with_mitsuba_on_the_cornell_box() {
     let s = scene("mitsuba-cornell");
-    assert_eq!(s.effects, EffectSet::default(), "a diffuse box needs no effects");
+    assert_eq!(
+        s.effects,
+        EffectSet::default(),
+        "a diffuse box needs no effects"
+    );
     let ours = draw(&s, 64, 7, s.effects).color;
     let theirs = read_image(&root().join("fixtures/mitsuba-cornell/reference.exr"), 3).unwrap();
     let (m, r) = (mean(&ours), mean(&theirs));
@@ -100,7 +109,12 @@ fn white_furnace_returns_the_environment() {
     let r = draw(&s, 32, 1, s.effects);
     let m = mean(&r.color);
     assert!((m - 1.0).abs() < 0.01, "furnace mean {m}");
-    let worst = r.color.data().iter().map(|v| (v - 1.0).abs()).fold(0.0f32, f32::max);
+    let worst = r
+        .color
+        .data()
+        .iter()
+        .map(|v| (v - 1.0).abs())
+        .fold(0.0f32, f32::max);
     assert!(worst < 0.5, "worst pixel off by {worst}");
 }
 
@@ -154,12 +168,27 @@ fn specialised_and_all_effects_integrators_agree() {
 #[test]
 fn same_bits_on_any_thread_count() {
     let s = scene("textured");
-    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
-    let three = rayon::ThreadPoolBuilder::new().num_threads(3).build().unwrap();
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let three = rayon::ThreadPoolBuilder::new()
+        .num_threads(3)
+        .build()
+        .unwrap();
     let a = one.install(|| draw(&s, 2, 9, s.effects));
     let b = three.install(|| draw(&s, 2, 9, s.effects));
-    for (x, y) in [(&a.color, &b.color), (&a.normal, &b.normal), (&a.shadow, &b.shadow), (&a.depth, &b.depth)] {
-        assert!(x.data().iter().zip(y.data()).all(|(p, q)| p.to_bits() == q.to_bits()));
+    for (x, y) in [
+        (&a.color, &b.color),
+        (&a.normal, &b.normal),
+        (&a.shadow, &b.shadow),
+        (&a.depth, &b.depth),
+    ] {
+        assert!(x
+            .data()
+            .iter()
+            .zip(y.data())
+            .all(|(p, q)| p.to_bits() == q.to_bits()));
     }
 }
 
@@ -183,7 +212,10 @@ fn committed_fixtures_render_again_to_the_same_bytes() {
             let file = format!("spp1/{buffer}.exr");
             let fresh = std::fs::read(out.join(&file)).unwrap();
             let committed = std::fs::read(root().join("fixtures").join(name).join(&file)).unwrap();
-            assert!(fresh == committed, "{name}/{file} differs from the committed fixture");
+            assert!(
+                fresh == committed,
+                "{name}/{file} differs from the committed fixture"
+            );
         }
     }
 }
@@ -192,8 +224,13 @@ fn committed_fixtures_render_again_to_the_same_bytes() {
 fn render_writes_the_render_set_layout() {
     let tmp = tempfile::tempdir().unwrap();
     let scene_file = tmp.path().join("small.toml");
-    std::fs::write(&scene_file, FURNACE.replace("width = 32", "width = 16").replace("height = 32", "height = 8"))
-        .unwrap();
+    std::fs::write(
+        &scene_file,
+        FURNACE
+            .replace("width = 32", "width = 16")
+            .replace("height = 32", "height = 8"),
+    )
+    .unwrap();
     let out = tmp.path().join("set");
     let status = gsid()
         .args(["render", "-q", "--spp", "1,2", "--reference-spp", "4", "-o"])
@@ -204,9 +241,14 @@ fn render_writes_the_render_set_layout() {
     assert!(status.success());
     assert!(out.join("scene.toml").is_file() && out.join("reference.exr").is_file());
     for spp in ["spp1", "spp2"] {
-        for (buffer, channels) in
-            [("color", 3), ("albedo", 3), ("normal", 3), ("material", 3), ("shadow", 1), ("depth", 1)]
-        {
+        for (buffer, channels) in [
+            ("color", 3),
+            ("albedo", 3),
+            ("normal", 3),
+            ("material", 3),
+            ("shadow", 1),
+            ("depth", 1),
+        ] {
             let img = read_image(&out.join(spp).join(format!("{buffer}.exr")), channels).unwrap();
             assert_eq!((img.width(), img.height()), (16, 8));
         }
@@ -223,13 +265,25 @@ fn scene_errors_name_the_key_and_exit_with_2() {
         ("ior = 1.5", "ior = 0.5", "materials.glass.ior"),
         ("scale = 0.7", "scale = [0.7, 0.2, 0.7]", "shapes[0].scale"),
         ("fov = 45", "fov = 45\nzoom = 2", "zoom"),
-        ("material = \"white\"", "material = \"whit\"", "shapes[0].material"),
+        (
+            "material = \"white\"",
+            "material = \"whit\"",
+            "shapes[0].material",
+        ),
     ] {
         let file = tmp.path().join("bad.toml");
         std::fs::write(&file, FURNACE.replacen(from, to, 1)).unwrap();
-        let out = gsid().args(["render", "-o"]).arg(tmp.path().join("o")).arg(&file).output().unwrap();
+        let out = gsid()
+            .args(["render", "-o"])
+            .arg(tmp.path().join("o"))
+            .arg(&file)
+            .output()
+            .unwrap();
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(2), "{err}");
-        assert!(err.contains(key) && err.lines().count() == 1, "expected `{key}` in: {err}");
+        assert!(
+            err.contains(key) && err.lines().count() == 1,
+            "expected `{key}` in: {err}"
+        );
     }
 }

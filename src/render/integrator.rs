@@ -31,7 +31,7 @@ impl Sampler {
 
     /// Uniform in [0, 1) with 24 bits.
     #[inline]
-    pub fn next(&mut self) -> f32 {
+    pub fn next_f32(&mut self) -> f32 {
         (self.0.next_u64() >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
     }
 }
@@ -108,7 +108,7 @@ pub fn trace<E: Effects>(
 ) -> PathSample {
     stats.paths += 1;
     let lens = if E::DOF {
-        (rng.next(), rng.next())
+        (rng.next_f32(), rng.next_f32())
     } else {
         (0.0, 0.0)
     };
@@ -193,27 +193,27 @@ pub fn trace<E: Effects>(
             let (index, select_pdf) = if E::SEVERAL_LIGHTS {
                 let n = scene.lights.len();
                 (
-                    ((rng.next() * n as f32) as usize).min(n - 1),
+                    ((rng.next_f32() * n as f32) as usize).min(n - 1),
                     1.0 / n as f32,
                 )
             } else {
                 (0, 1.0)
             };
             let light = &scene.lights[index];
-            let u = (rng.next(), rng.next());
+            let u = (rng.next_f32(), rng.next_f32());
             let mut reached = false;
             if let Some(ls) = light.sample(&scene.geometry, surf.p, u) {
-                if !ls.radiance.is_black() && ls.pdf > 0.0 {
-                    if !scene
+                if !ls.radiance.is_black()
+                    && ls.pdf > 0.0
+                    && !scene
                         .geometry
                         .occluded_towards(surf.p, surf.n, ls.wi, ls.dist)
-                    {
-                        reached = true;
-                        let (f, bsdf_pdf) = mat.eval::<E>(albedo, wo, frame.to_local(ls.wi));
-                        if !f.is_black() {
-                            let pdf = ls.pdf * select_pdf;
-                            radiance += beta * f * ls.radiance * (mis_power(pdf, bsdf_pdf) / pdf);
-                        }
+                {
+                    reached = true;
+                    let (f, bsdf_pdf) = mat.eval::<E>(albedo, wo, frame.to_local(ls.wi));
+                    if !f.is_black() {
+                        let pdf = ls.pdf * select_pdf;
+                        radiance += beta * f * ls.radiance * (mis_power(pdf, bsdf_pdf) / pdf);
                     }
                 }
             }
@@ -222,7 +222,7 @@ pub fn trace<E: Effects>(
             }
         }
 
-        let u = [rng.next(), rng.next(), rng.next()];
+        let u = [rng.next_f32(), rng.next_f32(), rng.next_f32()];
         let Some(bs) = mat.sample::<E>(albedo, wo, u) else {
             break;
         };
@@ -239,12 +239,12 @@ pub fn trace<E: Effects>(
         depth += 1;
 
         let beta_max = beta.max_component();
-        if !(beta_max > 0.0) {
+        if beta_max.is_nan() || beta_max <= 0.0 {
             break;
         }
         if depth >= scene.rr_depth {
             let q = (beta_max * eta_scale).min(0.95);
-            if rng.next() >= q {
+            if rng.next_f32() >= q {
                 break;
             }
             beta = beta / q;
@@ -371,7 +371,7 @@ fn render_tile(
             let mut acc = [0.0f64; 12];
             let (mut shadow, mut depth, mut hits) = (0.0f64, 0.0f64, 0u32);
             for _ in 0..spp {
-                let (jx, jy) = (rng.next(), rng.next());
+                let (jx, jy) = (rng.next_f32(), rng.next_f32());
                 let s = trace(scene, x as f32 + jx, y as f32 + jy, &mut rng, &mut stats);
                 for (k, v) in [s.color, s.albedo, s.normal, s.material].iter().enumerate() {
                     acc[3 * k] += v.x as f64;

@@ -526,14 +526,14 @@ impl SceneSpec {
                 "must not be parallel to the view direction",
             ));
         }
-        if !(c.fov > 0.0 && c.fov < 180.0) {
+        if !(0.0..180.0).contains(&c.fov) || c.fov == 0.0 {
             return Err(Error::config("camera.fov", "must be in (0, 180) degrees"));
         }
-        if !(c.aperture >= 0.0) {
+        if c.aperture.is_nan() || c.aperture < 0.0 {
             return Err(Error::config("camera.aperture", "must be ≥ 0"));
         }
         let focus = c.focus_distance.unwrap_or((target - eye).length());
-        if !(focus > 0.0) {
+        if focus.is_nan() || focus <= 0.0 {
             return Err(Error::config("camera.focus_distance", "must be > 0"));
         }
         let aperture = if on(fx.depth_of_field) {
