@@ -287,3 +287,45 @@ fn scene_errors_name_the_key_and_exit_with_2() {
         );
     }
 }
+
+#[test]
+fn image_textures_and_depth_of_field_render() {
+    let tmp = tempfile::tempdir().unwrap();
+    let tex = Image::from_fn(4, 4, 3, |x, y, c| [x as f32 / 4.0, y as f32 / 4.0, 0.5][c]);
+    gsid::io::write_exr(&tmp.path().join("tex.exr"), &tex).unwrap();
+    let text = r#"
+[render]
+width = 16
+height = 16
+[camera]
+eye = [0, 0, 3]
+target = [0, 0, 0]
+fov = 30
+aperture = 0.05
+[environment]
+radiance = 0.5
+[textures.img]
+type = "image"
+path = "tex.exr"
+[materials.wall]
+type = "diffuse"
+reflectance = "img"
+[[shapes]]
+type = "rectangle"
+material = "wall"
+scale = 2
+"#;
+    let file = tmp.path().join("scene.toml");
+    std::fs::write(&file, text).unwrap();
+    let s = Scene::load(&file).unwrap();
+    assert!(s.effects.textures && s.effects.depth_of_field && s.effects.environment);
+    let r = draw(&s, 4, 1, s.effects);
+    assert!(r.color.all_finite());
+    // The rectangle fills the view and shows the image upright: columns left to right, row 0 at the top.
+    let (left, right) = (r.albedo.at(1, 8)[0], r.albedo.at(14, 8)[0]);
+    let (top, bottom) = (r.albedo.at(8, 1)[1], r.albedo.at(8, 14)[1]);
+    assert!(
+        left < right && top < bottom,
+        "{left} {right} {top} {bottom}"
+    );
+}

@@ -138,7 +138,8 @@ pub enum Prim {
     Sphere(u32),
 }
 
-/// A surface point: position, unit geometric (= shading) normal, texture coordinates.
+/// A surface point: position, unit geometric (= shading) normal, texture coordinates (u along the first
+/// edge, v up: on rectangles the local x and y, on spheres longitude and latitude from the south pole).
 #[derive(Clone, Copy, Debug)]
 pub struct Surface {
     pub p: Vec3,
@@ -230,7 +231,7 @@ impl Geometry {
                 let n = (p - s.center) / s.radius;
                 let uv = if with_uv {
                     let u = (n.z.atan2(n.x) + std::f32::consts::PI) / (2.0 * std::f32::consts::PI);
-                    let v = n.y.clamp(-1.0, 1.0).acos() / std::f32::consts::PI;
+                    let v = 1.0 - n.y.clamp(-1.0, 1.0).acos() / std::f32::consts::PI;
                     (u, v)
                 } else {
                     (0.0, 0.0)

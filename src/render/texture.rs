@@ -22,7 +22,8 @@ pub enum Texture {
         scale: (f32, f32),
         mortar: f32,
     },
-    /// A linear RGB image stretched over [0, 1]², nearest pixel, repeating; v = 0 is the image's top row.
+    /// A linear RGB image stretched over [0, 1]², nearest pixel, repeating; v = 1 is the image's top row
+    /// (v grows upwards on rectangles and spheres, so images appear upright).
     Image(Image),
 }
 
@@ -65,7 +66,7 @@ impl Texture {
             Texture::Image(img) => {
                 let (w, h) = (img.width(), img.height());
                 let x = ((u - u.floor()) * w as f32) as usize;
-                let y = ((v - v.floor()) * h as f32) as usize;
+                let y = ((1.0 - (v - v.floor())) * h as f32) as usize;
                 let p = img.at(x.min(w - 1), y.min(h - 1));
                 Vec3::new(p[0], p[1], p[2])
             }
