@@ -32,6 +32,8 @@ pub enum Command {
     Eval(EvalArgs),
     /// List the named pipelines.
     Pipelines,
+    /// Render a scene file into a render set (fixture renderer).
+    Render(crate::render::RenderArgs),
     /// Run a pipeline and variants of it (each stage removed, each feature weight zeroed, plain SID) and score them.
     Ablate(AblateArgs),
 }
@@ -141,6 +143,7 @@ pub fn main() -> i32 {
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Denoise(args) => denoise(&args, cli.quiet),
+        Command::Render(args) => crate::render::run(&args, cli.quiet),
         Command::Eval(args) => eval(&args),
         Command::Ablate(args) => ablate(&args, cli.quiet),
         Command::Pipelines => {

@@ -14,6 +14,7 @@ pub mod outlier;
 pub mod pipeline;
 pub mod progress;
 pub mod pyramid;
+pub mod render;
 pub mod sanitize;
 pub mod stages;
 pub mod walk;

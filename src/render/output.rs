@@ -1,0 +1,34 @@
+//! Writes a render set in the FORMATS.md layout: `scene.toml`, `reference.exr`, `spp<N>/<buffer>.exr`.
+
+use std::path::Path;
+
+use super::integrator::RenderResult;
+use crate::error::{Error, Result};
+use crate::io::{write_exr, PendingOutput};
+
+/// Writes the six buffers of `r` into `dir` (created if missing).
+pub fn write_buffers(dir: &Path, r: &RenderResult) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::output(dir, e))?;
+    for (name, img) in [
+        ("color", &r.color),
+        ("albedo", &r.albedo),
+        ("normal", &r.normal),
+        ("material", &r.material),
+        ("shadow", &r.shadow),
+        ("depth", &r.depth),
+    ] {
+        write_exr(&dir.join(format!("{name}.exr")), img)?;
+    }
+    Ok(())
+}
+
+/// Writes the colour of `r` as `dir/reference.exr`.
+pub fn write_reference(dir: &Path, r: &RenderResult) -> Result<()> {
+    write_exr(&dir.join("reference.exr"), &r.color)
+}
+
+/// Copies the scene file's text into `dir/scene.toml`.
+pub fn write_scene(dir: &Path, text: &str) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::output(dir, e))?;
+    PendingOutput::create(&dir.join("scene.toml"))?.write_bytes(text.as_bytes())
+}
