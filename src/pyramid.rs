@@ -259,6 +259,31 @@ fn guided_expand(c: &Image, fine: &Image, coarse_guide: &Image) -> Image {
     })
 }
 
+/// Keeps every sample of `img` within the range of `guide`'s (2r+1)² neighbourhood, per channel: coarse
+/// corrections may move a pixel towards its neighbours' values but never beyond them (no overshoot
+/// or ringing, as the neighbourhood clamp of temporal anti-aliasing). Leaves `img` unchanged where it
+/// already is in range, so an untouched pyramid still reconstructs exactly.
+fn clamp_to_neighbourhood(img: &mut Image, guide: &Image, r: usize) {
+    let (w, h) = img.dims();
+    let c = img.channels();
+    for y in 0..h {
+        for x in 0..w {
+            for k in 0..c {
+                let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+                for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
+                    for xx in x.saturating_sub(r)..=(x + r).min(w - 1) {
+                        let v = guide.at(xx, yy)[k];
+                        lo = lo.min(v);
+                        hi = hi.max(v);
+                    }
+                }
+                let v = &mut img.pixel_mut(y * w + x)[k];
+                *v = v.clamp(lo, hi);
+            }
+        }
+    }
+}
+
 /// Laplacian blending of denoised levels `d[0]` (finest) … `d[L]` (coarsest), in domain T:
 /// T(R_L) = T(D_L); T(R_l) = b_l·(T(D_l) − EXPAND(T(REDUCE(D_l)))) + EXPAND(T(R_{l+1})), clamped at 0.
 ///
@@ -271,6 +296,7 @@ pub fn blend(
     band_weights: &[f32],
     domain: BlendDomain,
     guided: bool,
+    clamp_radius: Option<usize>,
 ) -> Result<Image> {
     let last = d
         .len()
@@ -300,6 +326,9 @@ pub fn blend(
         }
         for (v, &u) in next.data_mut().iter_mut().zip(up.data()) {
             *v += u;
+        }
+        if let Some(radius) = clamp_radius {
+            clamp_to_neighbourhood(&mut next, &domain.forward(&d[l]), radius);
         }
         r = next;
     }
@@ -343,7 +372,7 @@ mod tests {
                 (BlendDomain::Log, false),
                 (BlendDomain::Log, true),
             ] {
-                let out = blend(&levels_imgs, &[], domain, guided).unwrap();
+                let out = blend(&levels_imgs, &[], domain, guided, Some(1)).unwrap();
                 let max_rel = out
                     .data()
                     .iter()

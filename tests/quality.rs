@@ -44,8 +44,17 @@ fn gsid_beats_sid_beats_input_at_16_and_64_spp() {
     }
 }
 
-fn scores_of(pipeline: &str, spp: u32) -> metrics::Scores {
-    let dir = format!("fixtures/mitsuba-cornell/spp{spp}");
+/// Every fixture with a reference: Mitsuba's and the ones `gsid render` drew.
+const FIXTURES: [&str; 5] = [
+    "mitsuba-cornell",
+    "cornell",
+    "caustics",
+    "textured",
+    "detail",
+];
+
+fn scores_of(pipeline: &str, fixture: &str, spp: u32) -> metrics::Scores {
+    let dir = format!("fixtures/{fixture}/spp{spp}");
     let mut set = io::load_render_set(Path::new(&dir)).unwrap();
     let reference = io::read_image(set.reference.as_ref().unwrap(), 3).unwrap();
     let out = PipelineSpec::resolve(pipeline)

@@ -39,6 +39,8 @@ pub struct PyramidParams {
     pub domain: BlendDomain,
     /// Expand coarse corrections guided by the finer level (joint bilateral), so they stop at edges.
     pub guided: bool,
+    /// Keep each blended pixel within the range of its finer level's (2r+1)² neighbourhood; 0 = off.
+    pub clamp_radius: u32,
 }
 
 impl Default for PyramidParams {
@@ -49,6 +51,7 @@ impl Default for PyramidParams {
             mask: None,
             domain: BlendDomain::Log,
             guided: true,
+            clamp_radius: 1,
         }
     }
 }
@@ -255,6 +258,7 @@ impl Stage for PyramidStage {
             &self.params.blend,
             self.params.domain,
             self.params.guided,
+            (self.params.clamp_radius > 0).then_some(self.params.clamp_radius as usize),
         )?;
         buffers.insert(self.io.output.clone(), out)?;
         Ok(0)
