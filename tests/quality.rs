@@ -69,26 +69,28 @@ fn scores_of(pipeline: &str, fixture: &str, spp: u32) -> metrics::Scores {
 
 #[test]
 fn full_beats_single_scale_gsid_at_very_low_spp_and_holds_at_64() {
-    for spp in [1, 4] {
-        let (full, gsid) = (scores_of("full", spp), scores_of("gsid", spp));
+    for f in FIXTURES {
+        for spp in [1, 4] {
+            let (full, gsid) = (scores_of("full", f, spp), scores_of("gsid", f, spp));
+            assert!(
+                full.ssim > gsid.ssim,
+                "{f} spp{spp}: SSIM full {:.4} vs gsid {:.4}",
+                full.ssim,
+                gsid.ssim
+            );
+            assert!(
+                full.relmse < gsid.relmse,
+                "{f} spp{spp}: relMSE full {:.5} vs gsid {:.5}",
+                full.relmse,
+                gsid.relmse
+            );
+        }
+        let (full, gsid) = (scores_of("full", f, 64), scores_of("gsid", f, 64));
         assert!(
-            full.ssim > gsid.ssim,
-            "spp{spp}: SSIM full {:.4} vs gsid {:.4}",
+            full.ssim >= gsid.ssim - 0.005,
+            "{f} spp64: SSIM full {:.4} vs gsid {:.4}",
             full.ssim,
             gsid.ssim
         );
-        assert!(
-            full.relmse < gsid.relmse,
-            "spp{spp}: relMSE full {:.5} vs gsid {:.5}",
-            full.relmse,
-            gsid.relmse
-        );
     }
-    let (full, gsid) = (scores_of("full", 64), scores_of("gsid", 64));
-    assert!(
-        full.ssim >= gsid.ssim - 0.005,
-        "spp64: SSIM full {:.4} vs gsid {:.4}",
-        full.ssim,
-        gsid.ssim
-    );
 }
