@@ -286,3 +286,82 @@ fn pipelines_lists_the_named_pipelines() {
     }
     assert!(Path::new("pipelines/gsid.toml").is_file());
 }
+
+#[test]
+fn the_outlier_mask_can_be_saved_for_inspection() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (out, mask) = (tmp.path().join("out.exr"), tmp.path().join("mask.exr"));
+    let arg = format!("outlier_mask={}", mask.display());
+    let run = gsid(&[
+        "denoise",
+        "fixtures/caustics/spp1",
+        "-o",
+        out.to_str().unwrap(),
+        "--save-buffer",
+        &arg,
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    assert!(
+        stderr(&run).contains("outlier:"),
+        "the run reports how many pixels it flagged"
+    );
+    let m = io::read_image(&mask, 1).unwrap();
+    let flagged = m.data().iter().filter(|&&v| v > 0.5).count();
+    assert!(
+        flagged > 0 && flagged < m.pixel_count() / 10,
+        "{flagged} pixels flagged"
+    );
+    let bad = gsid(&[
+        "denoise",
+        FIXTURE_SPP1,
+        "-p",
+        "gsid",
+        "-o",
+        out.to_str().unwrap(),
+        "--save-buffer",
+        &arg,
+    ]);
+    assert_bad_input(&bad, "outlier_mask");
+}
+
+#[test]
+fn ablate_prints_and_writes_the_table() {
+    let tmp = tempfile::tempdir().unwrap();
+    let csv = tmp.path().join("ablate.csv");
+    let run = gsid(&[
+        "ablate",
+        "fixtures/mitsuba-cornell/spp4",
+        "-p",
+        "full",
+        "--out",
+        csv.to_str().unwrap(),
+        "-q",
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let table = String::from_utf8_lossy(&run.stdout);
+    for variant in [
+        "full (full)",
+        "without outlier",
+        "without pyramid",
+        "weight albedo = 0",
+        "weight depth = 0",
+        "plain SID",
+    ] {
+        assert!(table.contains(variant), "missing {variant}: {table}");
+    }
+    let text = std::fs::read_to_string(&csv).unwrap();
+    // Header, then: full, two stages removed, eight weights zeroed, plain SID.
+    assert_eq!(text.lines().count(), 1 + 12, "{text}");
+    assert!(text.starts_with("variant,ssim,psnr,relmse,seconds,delta_ssim"));
+    let bad = gsid(&[
+        "ablate",
+        "fixtures/mitsuba-cornell/spp4",
+        "--out",
+        tmp.path().join("t.txt").to_str().unwrap(),
+    ]);
+    assert_bad_input(&bad, "t.txt");
+    let tmp2 = tempfile::tempdir().unwrap();
+    let set = tmp2.path().join("set");
+    write_set(&set, &synthetic_set(8, 8));
+    assert_bad_input(&gsid(&["ablate", set.to_str().unwrap()]), "reference");
+}
