@@ -209,51 +209,42 @@ impl Features {
             }
             Ok(img)
         };
+        let pack =
+            |records: &mut [[f32; FEATURE_LANES]], img: &Image, first: usize, scales: &[f32]| {
+                for (i, r) in records.iter_mut().enumerate() {
+                    for (k, (&v, &scale)) in img.pixel(i).iter().zip(scales).enumerate() {
+                        r[first + k] = scale * v;
+                    }
+                }
+            };
         if wt.albedo > 0.0 {
             if let Some(a) = fetch("albedo", 3)? {
-                for (i, r) in records.iter_mut().enumerate() {
-                    let p = a.pixel(i);
-                    r[3..6].copy_from_slice(&[
-                        wt.albedo * p[0],
-                        wt.albedo * p[1],
-                        wt.albedo * p[2],
-                    ]);
-                }
+                pack(&mut records, a, 3, &[wt.albedo; 3]);
             }
         }
         if wt.normal > 0.0 {
             if let Some(nm) = fetch("normal", 3)? {
-                let s = wt.normal.sqrt() * 0.5;
-                for (i, r) in records.iter_mut().enumerate() {
-                    let p = nm.pixel(i);
-                    r[6..9].copy_from_slice(&[s * p[0], s * p[1], s * p[2]]);
-                }
+                pack(&mut records, nm, 6, &[wt.normal.sqrt() * 0.5; 3]);
             }
         }
         if wt.diffuse > 0.0 || wt.reflective > 0.0 || wt.refractive > 0.0 {
             if let Some(m) = fetch("material", 3)? {
-                for (i, r) in records.iter_mut().enumerate() {
-                    let p = m.pixel(i);
-                    r[9..12].copy_from_slice(&[
-                        wt.diffuse * p[0],
-                        wt.reflective * p[1],
-                        wt.refractive * p[2],
-                    ]);
-                }
+                pack(
+                    &mut records,
+                    m,
+                    9,
+                    &[wt.diffuse, wt.reflective, wt.refractive],
+                );
             }
         }
         if wt.shadow > 0.0 {
-            if let Some(s) = fetch("shadow", 1)? {
-                for (i, r) in records.iter_mut().enumerate() {
-                    r[12] = wt.shadow * s.pixel(i)[0];
-                }
+            if let Some(sh) = fetch("shadow", 1)? {
+                pack(&mut records, sh, 12, &[wt.shadow]);
             }
         }
         if wt.depth > 0.0 {
             if let Some(z) = fetch("depth", 1)? {
-                for (i, r) in records.iter_mut().enumerate() {
-                    r[13] = z.pixel(i)[0];
-                }
+                pack(&mut records, z, 13, &[1.0]);
             }
         }
         Ok((

@@ -58,32 +58,29 @@ pub fn srgb_encode(x: f64) -> f64 {
     }
 }
 
-/// The LDR view as one f64 plane per channel.
-fn ldr_planes(img: &Image) -> Vec<Vec<f64>> {
-    (0..img.channels())
-        .map(|c| {
+/// One f64 plane per channel, each sample passed through `f`.
+fn planes_with(img: &Image, f: impl Fn(f64) -> f64) -> Vec<Vec<f64>> {
+    let c = img.channels();
+    (0..c)
+        .map(|k| {
             img.data()
                 .iter()
-                .skip(c)
-                .step_by(img.channels())
-                .map(|&v| srgb_encode(v as f64))
+                .skip(k)
+                .step_by(c)
+                .map(|&v| f(v as f64))
                 .collect()
         })
         .collect()
 }
 
+/// The LDR view as one f64 plane per channel.
+fn ldr_planes(img: &Image) -> Vec<Vec<f64>> {
+    planes_with(img, srgb_encode)
+}
+
 /// Split planes of an already-LDR image (no curve applied): for comparisons on given data.
 pub fn planes_of(img: &Image) -> Vec<Vec<f64>> {
-    (0..img.channels())
-        .map(|c| {
-            img.data()
-                .iter()
-                .skip(c)
-                .step_by(img.channels())
-                .map(|&v| v as f64)
-                .collect()
-        })
-        .collect()
+    planes_with(img, |v| v)
 }
 
 /// SSIM of the LDR views of two linear images.
