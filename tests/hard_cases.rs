@@ -152,3 +152,53 @@ fn full_pipeline_is_identical_on_one_and_two_threads() {
     };
     assert_eq!(run_on(1), run_on(2));
 }
+
+/// relMSE of `out / k` against the ×1 reference: quality judged at one common brightness.
+fn rel_mse_at_unit_scale(out: &Image, k: f32, reference: &Image) -> f64 {
+    let back = Image::from_fn(out.width(), out.height(), 3, |x, y, c| out.at(x, y)[c] / k);
+    gsid::metrics::rel_mse(&back, reference)
+}
+
+#[test]
+fn results_do_not_depend_on_the_render_s_brightness_scale() {
+    let set =
+        gsid::io::load_render_set(std::path::Path::new("fixtures/mitsuba-cornell/spp4")).unwrap();
+    let reference = gsid::io::read_image(set.reference.as_ref().unwrap(), 3).unwrap();
+    let at = |k: f32| {
+        let mut b = set.buffers.clone();
+        b.get_mut("color")
+            .unwrap()
+            .data_mut()
+            .iter_mut()
+            .for_each(|v| *v *= k);
+        rel_mse_at_unit_scale(&run("full", &[], &mut b), k, &reference)
+    };
+    let unit = at(1.0);
+    for k in [1e-3f32, 0.01, 100.0, 1e4] {
+        let e = at(k);
+        assert!(
+            e < 1.5 * unit,
+            "brightness ×{k}: relMSE {e:.5} vs {unit:.5} at ×1"
+        );
+    }
+}
+
+#[test]
+fn renders_in_the_calibrated_range_are_not_rescaled() {
+    for name in [
+        "mitsuba-cornell",
+        "cornell",
+        "caustics",
+        "textured",
+        "detail",
+    ] {
+        let c = gsid::io::read_image(
+            std::path::Path::new(&format!("fixtures/{name}/spp1/color.exr")),
+            3,
+        )
+        .unwrap();
+        assert_eq!(gsid::pipeline::exposure_scale(&c), 1.0, "{name}");
+    }
+    assert!(gsid::pipeline::exposure_scale(&Image::filled(4, 4, 3, 100.0)) < 0.01);
+    assert_eq!(gsid::pipeline::exposure_scale(&Image::new(4, 4, 3)), 1.0);
+}
