@@ -143,12 +143,7 @@ fn missing_color_is_named() {
     b.remove("color");
     write_set(&set, &b);
     let out = tmp.path().join("out.exr");
-    let run = gsid(&[
-        "denoise",
-        set.to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-    ]);
+    let run = denoise(&set, &out);
     assert_bad_input(&run, "color");
     assert!(!out.exists());
 }
@@ -160,12 +155,7 @@ fn buffers_of_different_sizes_name_both_files() {
     write_set(&set, &synthetic_set(8, 8));
     io::write_exr(&set.join("normal.exr"), &gsid::Image::new(9, 8, 3)).unwrap();
     let out = tmp.path().join("out.exr");
-    let run = gsid(&[
-        "denoise",
-        set.to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-    ]);
+    let run = denoise(&set, &out);
     assert_bad_input(&run, "normal.exr");
     assert!(
         stderr(&run).contains("color.exr") && stderr(&run).contains("9x8"),
@@ -183,12 +173,7 @@ fn truncated_exr_is_named() {
     let bytes = std::fs::read(set.join("albedo.exr")).unwrap();
     std::fs::write(set.join("albedo.exr"), &bytes[..bytes.len() / 2]).unwrap();
     let out = tmp.path().join("out.exr");
-    let run = gsid(&[
-        "denoise",
-        set.to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-    ]);
+    let run = denoise(&set, &out);
     assert_bad_input(&run, "albedo.exr");
     assert!(!out.exists());
 }

@@ -438,19 +438,12 @@ impl SceneSpec {
                 .transpose()?;
             let radiance = emission.filter(|e| !e.is_black());
             match s.kind {
-                ShapeKind::Rectangle => {
-                    let mut q = Quad::rectangle(&m, material);
-                    if let Some(radiance) = radiance {
-                        q.light = lights.len() as u32;
-                        lights.push(Light::Quad {
-                            index: geometry.quads.len() as u32,
-                            radiance,
-                        });
-                    }
-                    geometry.quads.push(q);
-                }
-                ShapeKind::Cube => {
-                    for mut q in Quad::cube(&m, material) {
+                ShapeKind::Rectangle | ShapeKind::Cube => {
+                    let quads = match s.kind {
+                        ShapeKind::Rectangle => vec![Quad::rectangle(&m, material)],
+                        _ => Quad::cube(&m, material),
+                    };
+                    for mut q in quads {
                         if let Some(radiance) = radiance {
                             q.light = lights.len() as u32;
                             lights.push(Light::Quad {

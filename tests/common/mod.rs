@@ -15,6 +15,16 @@ pub fn gsid(args: &[&str]) -> Output {
         .expect("run gsid")
 }
 
+/// `gsid denoise DIR -o OUT` with the default pipeline.
+pub fn denoise(dir: &Path, out: &Path) -> Output {
+    gsid(&[
+        "denoise",
+        dir.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ])
+}
+
 pub fn stderr(out: &Output) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
