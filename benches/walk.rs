@@ -7,7 +7,7 @@ use std::path::Path;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use gsid::features::{Features, Tone, Weights};
-use gsid::walk::{denoise, denoise_reference, WalkInput, WalkParams};
+use gsid::walk::{denoise_reference, denoise_with, Kernel, WalkInput, WalkParams};
 use gsid::{io, sanitize};
 
 fn bench_walks(c: &mut Criterion) {
@@ -30,7 +30,9 @@ fn bench_walks(c: &mut Criterion) {
         level: 0,
     };
     let params = WalkParams::default();
-    let steps = denoise(&input, &params, &|| {}).1.steps;
+    let steps = denoise_with(Kernel::Scalar, &input, &params, &|| {})
+        .1
+        .steps;
 
     for threads in [1usize, 2] {
         let pool = rayon::ThreadPoolBuilder::new()
@@ -41,9 +43,14 @@ fn bench_walks(c: &mut Criterion) {
             c.benchmark_group(format!("walk kernel, {threads} thread(s), 128x128 gsid"));
         group.throughput(Throughput::Elements(steps));
         group.sample_size(20);
-        group.bench_function("fast", |b| {
-            b.iter(|| pool.install(|| denoise(&input, &params, &|| {})))
-        });
+        for kernel in [Kernel::Avx2, Kernel::Scalar] {
+            if !kernel.is_available() {
+                continue;
+            }
+            group.bench_function(format!("fast {kernel:?}"), |b| {
+                b.iter(|| pool.install(|| denoise_with(kernel, &input, &params, &|| {})))
+            });
+        }
         if threads == 1 {
             group.bench_function("reference", |b| {
                 b.iter(|| denoise_reference(&input, &params))

@@ -24,7 +24,9 @@ use crate::image::Image;
 /// Floats per pixel record (padded to a cache line).
 pub const FEATURE_LANES: usize = 16;
 /// Guards the relative depth difference against two zero depths.
-const DEPTH_EPS: f32 = 1e-8;
+pub const DEPTH_EPS: f32 = 1e-8;
+/// Record lanes that enter d (the rest is padding).
+pub const USED_LANES: usize = 14;
 
 /// The eight feature weights W1..W8 (ALGORITHM.md §2). Zero switches a feature off (and skips its buffer).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -266,6 +268,33 @@ impl Features {
         self.height
     }
 
+    pub fn depth_weight(&self) -> f32 {
+        self.depth_weight
+    }
+
+    /// Rows `rows` of the records as one plane per lane (structure of arrays), each row padded with
+    /// `pad` zero columns on both sides, so 8 horizontally adjacent pixels are one vector load.
+    pub fn planes(&self, rows: std::ops::Range<usize>, pad: usize) -> FeaturePlanes {
+        let stride = self.width + 2 * pad;
+        let plane_len = rows.len() * stride;
+        let mut data = vec![0.0f32; USED_LANES * plane_len];
+        for (r, y) in rows.clone().enumerate() {
+            for x in 0..self.width {
+                let rec = &self.records[y * self.width + x];
+                for (lane, &v) in rec[..USED_LANES].iter().enumerate() {
+                    data[lane * plane_len + r * stride + pad + x] = v;
+                }
+            }
+        }
+        FeaturePlanes {
+            first_row: rows.start,
+            pad,
+            stride,
+            plane_len,
+            data,
+        }
+    }
+
     #[inline]
     pub fn record(&self, i: usize) -> &[f32; FEATURE_LANES] {
         &self.records[i]
@@ -275,6 +304,26 @@ impl Features {
     #[inline]
     pub fn distance(&self, i: usize, j: usize) -> f32 {
         distance(&self.records[i], &self.records[j], self.depth_weight)
+    }
+}
+
+/// A band of rows of [`Features`] as padded planes, for kernels that compare 8 pixels at once.
+pub struct FeaturePlanes {
+    first_row: usize,
+    pad: usize,
+    stride: usize,
+    plane_len: usize,
+    data: Vec<f32>,
+}
+
+impl FeaturePlanes {
+    /// Lane `lane` of the 8 pixels (x .. x+8, y); x may reach `pad` columns beyond either side.
+    #[inline]
+    pub fn row8(&self, lane: usize, x: isize, y: usize) -> &[f32] {
+        let start = lane * self.plane_len
+            + (y - self.first_row) * self.stride
+            + (x + self.pad as isize) as usize;
+        &self.data[start..start + 8]
     }
 }
 

@@ -6,6 +6,7 @@ pub mod ablate;
 pub mod buffers;
 pub mod cli;
 pub mod error;
+pub mod fastmath;
 pub mod features;
 pub mod image;
 pub mod io;

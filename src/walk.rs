@@ -1,27 +1,31 @@
 //! The random-walk kernel of SID/GSID (ALGORITHM.md §3).
 //!
 //! From every start pixel x0, `walks` random walks step to one of the 8 neighbours with
-//! p ∝ exp(a), a = −(d(x0, y)² + d(x_j, y)²) / (2σ²), computed in the log domain (subtract the largest
-//! a before exp, so the normaliser is ≥ 1 for every σ). A walk stops once its log-probability
+//! p ∝ exp(a), a = −(d(x0, y)² + d(x_j, y)²) / (2σ²). A walk stops once its log-probability
 //! L_k = Σ log p drops below ln(p_min), or at `max_steps`. The pixel reached at step k adds
 //! w = exp(L_k / k) (the geometric mean of its step probabilities) to x0's weighted average of
 //! linear colour, accumulated in f64.
 //!
-//! Two versions: [`denoise_reference`] recomputes every distance (the readable spec, used by tests),
-//! [`denoise`] precomputes the x0-independent term d(x_j, y) once per pixel and neighbour and, with a
-//! window, the x0 term once per window cell. Both consume the same random numbers and form the same
-//! sums in the same order, so they agree bit for bit.
+//! Sampling uses exp(a) = exp(x0 term) · exp(neighbour term), both exponentials precomputed, so a
+//! step needs no exp; L_k is kept in the log domain (a_pick − ln Σ exp(a)). When Σ exp(a) nears
+//! f32 underflow (tiny σ, strong edges) the step falls back to the max-subtracted log domain, which
+//! is exact for every σ.
+//!
+//! Versions: [`denoise_reference`] recomputes every distance (the readable spec, used by tests);
+//! [`denoise`] precomputes the x0-independent terms per band of rows and, with a window, the x0
+//! terms per window cell, and runs a scalar or an AVX2 step ([`Kernel`]). All consume the same
+//! random numbers and form the same sums in the same order, so they agree bit for bit.
 
 // Lane loops index several 8-wide arrays at once; indices read better than zipped iterators.
 #![allow(clippy::needless_range_loop)]
 
+use std::ops::Range;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use rand::rngs::Xoshiro256PlusPlus;
-use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 
-use crate::features::Features;
+use crate::fastmath::{exp_neg, ln_normal};
+use crate::features::{FeaturePlanes, Features};
 use crate::image::Image;
 
 /// The 8-neighbourhood, in the lane order used everywhere (row above, same row, row below).
@@ -87,62 +91,118 @@ pub struct WalkInput<'a> {
 }
 
 fn splitmix(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = z.wrapping_add(GAMMA);
     z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
     z ^ (z >> 31)
 }
 
-/// The random stream of one start pixel: depends only on (seed, level, pixel), never on scheduling.
-pub fn pixel_rng(seed: u64, level: u32, pixel: usize) -> Xoshiro256PlusPlus {
-    Xoshiro256PlusPlus::seed_from_u64(splitmix(
-        splitmix(splitmix(seed) ^ level as u64) ^ pixel as u64,
-    ))
-}
+/// SplitMix64's increment (the golden ratio in 64 bits).
+const GAMMA: u64 = 0x9e37_79b9_7f4a_7c15;
 
-/// Uniform in [0, 1) with 24 bits, the precision of the f32 sums it is compared with.
+/// The key of one start pixel: depends only on (seed, level, pixel), never on scheduling.
 #[inline]
-fn uniform(rng: &mut Xoshiro256PlusPlus) -> f32 {
-    (rng.next_u32() >> 8) as f32 * (1.0 / 16_777_216.0)
+pub fn pixel_key(seed: u64, level: u32, pixel: usize) -> u64 {
+    splitmix(splitmix(splitmix(seed) ^ level as u64) ^ pixel as u64)
 }
 
-/// Picks a neighbour from logits `a` (−∞ = not allowed) with the uniform draw `u`.
+/// The key of walk `walk` from a start pixel. Every walk has its own stream, so walks may be
+/// interleaved (or run in any order) without changing which numbers each one draws.
+#[inline]
+pub fn walk_key(pixel_key: u64, walk: u32) -> u64 {
+    splitmix(pixel_key ^ walk as u64)
+}
+
+/// The uniform in [0, 1) that step `step` of the walk `key` draws: SplitMix64's output number
+/// `step` of the stream seeded with `key`, cut to 24 bits (the precision of the f32 sums it meets).
+#[inline]
+pub fn uniform(key: u64, step: u32) -> f32 {
+    (splitmix(key.wrapping_add((step as u64).wrapping_mul(GAMMA))) >> 40) as f32
+        * (1.0 / 16_777_216.0)
+}
+
+/// Below this Σ exp(a) a step samples in the max-subtracted log domain instead: the linear
+/// weights are then too close to f32 underflow to be trusted.
+pub const LINEAR_MIN: f32 = 1e-30;
+
+/// Inclusive prefix sums of 8 lanes, added in the order of the AVX2 kernel's in-register scan
+/// (pairs, then quads, then the low half's total carried into the high half), so both versions
+/// round identically.
+#[inline]
+pub fn prefix8(e: &[f32; 8]) -> [f32; 8] {
+    let c3 = (e[3] + e[2]) + (e[1] + e[0]);
+    let h7 = (e[7] + e[6]) + (e[5] + e[4]);
+    [
+        e[0],
+        e[1] + e[0],
+        (e[2] + e[1]) + e[0],
+        c3,
+        e[4] + c3,
+        (e[5] + e[4]) + c3,
+        ((e[6] + e[5]) + e[4]) + c3,
+        h7 + c3,
+    ]
+}
+
+/// The lane whose cumulative weight first exceeds `target`. If rounding put `target` at the very
+/// top, the last lane with weight (the top of the distribution). Lanes of weight 0 are never
+/// picked: their cumulative sum equals the previous lane's.
+#[inline]
+fn pick(c: &[f32; 8], e: &[f32; 8], target: f32) -> usize {
+    (0..8)
+        .find(|&k| target < c[k])
+        .unwrap_or_else(|| (0..8).rev().find(|&k| e[k] > 0.0).unwrap_or(0))
+}
+
+/// Picks a neighbour with the uniform draw `u`, from log-weights `a` (−∞ = not allowed) and their
+/// exponentials `l` (each the product of the two precomputed factors).
 ///
-/// Returns the lane and its log-probability, or `None` when no neighbour is allowed. A rounding miss
-/// at the top of the cumulative sum falls back to the most likely lane.
+/// Returns the lane and its log-probability, or `None` when no neighbour is allowed. This is the
+/// specification the AVX2 kernel reproduces bit for bit.
 #[inline]
-pub fn choose(a: &[f32; 8], u: f32) -> Option<(usize, f32)> {
-    let mut m = f32::NEG_INFINITY;
-    let mut best = 0;
-    for (k, &v) in a.iter().enumerate() {
-        if v > m {
-            m = v;
-            best = k;
-        }
+pub fn choose(a: &[f32; 8], l: &[f32; 8], u: f32) -> Option<(usize, f32)> {
+    choose_parts(a, l, u).map(|(k, x, sum)| (k, x - ln_normal(sum)))
+}
+
+/// [`choose`] before its last operation: the lane k, and x and sum with log-probability
+/// x − ln(sum) (the AVX2 kernel takes that ln for several walks at once).
+#[inline]
+fn choose_parts(a: &[f32; 8], l: &[f32; 8], u: f32) -> Option<(usize, f32, f32)> {
+    let c = prefix8(l);
+    let sum = c[7];
+    if sum >= LINEAR_MIN {
+        let k = pick(&c, l, u * sum);
+        return Some((k, a[k], sum));
     }
+    choose_log(a, u)
+}
+
+/// [`choose_parts`] for weights near underflow: subtract the largest log-weight m before exp, so
+/// the normaliser lies in [1, 8] for every σ; x is then a_k − m.
+#[inline]
+fn choose_log(a: &[f32; 8], u: f32) -> Option<(usize, f32, f32)> {
+    let m = a.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
     if m == f32::NEG_INFINITY {
         return None;
     }
-    let mut e = [0.0f32; 8];
-    let mut sum = 0.0f32;
-    for k in 0..8 {
-        e[k] = (a[k] - m).exp();
-        sum += e[k];
-    }
-    let target = u * sum;
-    let mut cum = 0.0f32;
-    let mut pick = best;
-    for k in 0..8 {
-        cum += e[k];
-        if target < cum && e[k] > 0.0 {
-            pick = k;
-            break;
-        }
-    }
-    Some((pick, (a[pick] - m) - sum.ln()))
+    let z = a.map(|v| v - m);
+    let e = z.map(exp_neg);
+    let c = prefix8(&e);
+    let sum = c[7];
+    let k = pick(&c, &e, u * sum);
+    Some((k, z[k], sum))
 }
 
-/// Accumulates one start pixel's weighted colour in f64.
+/// The weight of the pixel reached at step `step` with log-probability `log_p`: the geometric mean
+/// of the step probabilities, exp(log_p / step).
+#[inline]
+fn step_weight(log_p: f64, step: u32) -> f64 {
+    exp_neg((log_p / step as f64) as f32) as f64
+}
+
+/// Accumulates weighted colour in f64: one per walk, then merged into the start pixel's in walk
+/// order, so walks may run interleaved and still give the same bits.
+#[derive(Clone, Copy, Default)]
 struct Accum {
     sum: [f64; 3],
     weight: f64,
@@ -169,6 +229,14 @@ impl Accum {
         self.sum[1] += w * c[1] as f64;
         self.sum[2] += w * c[2] as f64;
         self.weight += w;
+    }
+
+    #[inline]
+    fn merge(&mut self, walk: &Accum) {
+        for k in 0..3 {
+            self.sum[k] += walk.sum[k];
+        }
+        self.weight += walk.weight;
     }
 
     fn write(&self, fallback: &[f32], out: &mut [f32]) {
@@ -206,16 +274,19 @@ pub fn denoise_reference(input: &WalkInput, params: &WalkParams) -> (Image, Walk
     for y0 in 0..h {
         for x0 in 0..w {
             let i0 = y0 * w + x0;
-            let mut rng = pixel_rng(input.seed, input.level, i0);
+            let pkey = pixel_key(input.seed, input.level, i0);
             let mut acc = Accum::new(input, i0, params);
-            for _ in 0..params.walks {
+            for walk in 0..params.walks {
                 stats.walks += 1;
+                let key = walk_key(pkey, walk);
                 let (mut x, mut y) = (x0, y0);
                 let mut log_p = 0.0f64;
+                let mut part = Accum::default();
                 for step in 1..=params.max_steps {
                     let i = y * w + x;
                     let mut a = [f32::NEG_INFINITY; 8];
-                    for (k, ak) in a.iter_mut().enumerate() {
+                    let mut l = [0.0f32; 8];
+                    for k in 0..8 {
                         let Some((nx, ny)) = neighbour(x, y, k, w, h) else {
                             continue;
                         };
@@ -228,18 +299,22 @@ pub fn denoise_reference(input: &WalkInput, params: &WalkParams) -> (Image, Walk
                         }
                         let d0 = input.features.distance(i0, j);
                         let dj = input.features.distance(i, j);
-                        *ak = (-(d0 * d0) * inv) + (-(dj * dj) * inv);
+                        let (t0, tj) = (-(d0 * d0) * inv, -(dj * dj) * inv);
+                        a[k] = t0 + tj;
+                        l[k] = exp_neg(t0) * exp_neg(tj);
                     }
-                    let u = uniform(&mut rng);
-                    let Some((k, lp)) = choose(&a, u) else { break };
+                    let Some((k, lp)) = choose(&a, &l, uniform(key, step)) else {
+                        break;
+                    };
                     log_p += lp as f64;
                     if log_p < ln_pmin {
                         break;
                     }
                     (x, y) = neighbour(x, y, k, w, h).expect("chosen neighbour is inside");
                     stats.steps += 1;
-                    acc.add(input.color.pixel(y * w + x), (log_p / step as f64).exp());
+                    part.add(input.color.pixel(y * w + x), step_weight(log_p, step));
                 }
+                acc.merge(&part);
             }
             acc.write(input.color.pixel(i0), out.pixel_mut(i0));
         }
@@ -247,67 +322,199 @@ pub fn denoise_reference(input: &WalkInput, params: &WalkParams) -> (Image, Walk
     (out, stats)
 }
 
-/// −d(i, neighbour k)²/(2σ²) for every pixel and lane; −∞ outside the image or on masked pixels.
-fn neighbour_terms(input: &WalkInput, inv: f32) -> Vec<[f32; 8]> {
-    let (w, h) = input.color.dims();
-    let blocked = |j: usize| input.mask.is_some_and(|m| m[j]);
-    let mut terms = vec![[f32::NEG_INFINITY; 8]; w * h];
-    terms
-        .par_chunks_mut(w.max(1))
-        .enumerate()
-        .for_each(|(y, row)| {
-            for (x, t) in row.iter_mut().enumerate() {
+/// The x0-independent terms of a band of rows: for each pixel i and lane k, −d(i, j)²/(2σ²) and
+/// its exp (−∞ and 0 outside the image or on masked pixels). One pixel's 8 terms are one 32-byte
+/// block, so a step loads them with one vector load.
+struct Near {
+    /// Index of the first pixel of the band.
+    base: usize,
+    log: Vec<[f32; 8]>,
+    lin: Vec<[f32; 8]>,
+}
+
+impl Near {
+    fn compute(input: &WalkInput, inv: f32, rows: Range<usize>) -> Near {
+        let (w, h) = input.color.dims();
+        let blocked = |j: usize| input.mask.is_some_and(|m| m[j]);
+        let n = rows.len() * w;
+        let mut log = vec![[f32::NEG_INFINITY; 8]; n];
+        let mut lin = vec![[0.0f32; 8]; n];
+        for y in rows.clone() {
+            for x in 0..w {
                 let i = y * w + x;
-                for (k, tk) in t.iter_mut().enumerate() {
+                let slot = (y - rows.start) * w + x;
+                for k in 0..8 {
                     if let Some((nx, ny)) = neighbour(x, y, k, w, h) {
                         let j = ny * w + nx;
                         if !blocked(j) {
                             let d = input.features.distance(i, j);
-                            *tk = -(d * d) * inv;
+                            let t = -(d * d) * inv;
+                            log[slot][k] = t;
+                            lin[slot][k] = exp_neg(t);
                         }
                     }
                 }
             }
-        });
-    terms
+        }
+        Near {
+            base: rows.start * w,
+            log,
+            lin,
+        }
+    }
+
+    #[inline]
+    fn log(&self, i: usize) -> &[f32; 8] {
+        &self.log[i - self.base]
+    }
+
+    #[inline]
+    fn lin(&self, i: usize) -> &[f32; 8] {
+        &self.lin[i - self.base]
+    }
 }
 
-/// The fast version: parallel over rows, x0-independent terms precomputed, window terms cached.
-///
-/// `on_row` is called once per finished row (for progress bars).
+/// Start-pixel rows per parallel task: the band's neighbour terms (with a window-radius halo) stay
+/// in cache and never exist for the whole image at once.
+const BAND_ROWS: usize = 16;
+
+/// Which implementation of the windowed walk step runs. All give the same bits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kernel {
+    /// Portable Rust, lane by lane.
+    Scalar,
+    /// One step's 8 neighbours in one 256-bit register (x86-64 with AVX2).
+    Avx2,
+}
+
+impl Kernel {
+    /// The fastest kernel this CPU runs, detected at run time so one binary serves old CPUs too.
+    pub fn detect() -> Kernel {
+        if Kernel::Avx2.is_available() {
+            Kernel::Avx2
+        } else {
+            Kernel::Scalar
+        }
+    }
+
+    pub fn is_available(self) -> bool {
+        match self {
+            Kernel::Scalar => true,
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx2 => std::arch::is_x86_feature_detected!("avx2"),
+            #[cfg(not(target_arch = "x86_64"))]
+            Kernel::Avx2 => false,
+        }
+    }
+}
+
+/// The fast version with the fastest kernel this CPU has. See [`denoise_with`].
 pub fn denoise(
     input: &WalkInput,
     params: &WalkParams,
     on_row: &(dyn Fn() + Sync),
 ) -> (Image, WalkStats) {
+    denoise_with(Kernel::detect(), input, params, on_row)
+}
+
+/// Per-thread scratch space, reused across start pixels.
+#[derive(Default)]
+struct Scratch {
+    grid: Vec<f32>,
+    egrid: Vec<f32>,
+    parts: Vec<Accum>,
+}
+
+/// The fast version: parallel over bands of rows, neighbour terms precomputed per band, window
+/// terms per start pixel.
+///
+/// `on_row` is called once per finished row (for progress bars). An unavailable `kernel` falls
+/// back to the scalar one (same result).
+pub fn denoise_with(
+    kernel: Kernel,
+    input: &WalkInput,
+    params: &WalkParams,
+    on_row: &(dyn Fn() + Sync),
+) -> (Image, WalkStats) {
+    let kernel = if kernel.is_available() {
+        kernel
+    } else {
+        Kernel::Scalar
+    };
     let (w, h) = input.color.dims();
     let inv = inv_two_sigma2(params.sigma);
-    let near = neighbour_terms(input, inv);
     let steps = AtomicU64::new(0);
     let mut out = Image::new(w, h, 3);
     // The window is clipped to what a walk can reach: a larger one only costs time.
     let radius = params.window.map(|r| r.min(params.max_steps) as usize);
-    let side = radius.map_or(0, |r| 2 * r + 3);
+    // Unbounded walks may reach any row, so they share one whole-image table.
+    let global = radius.is_none().then(|| Near::compute(input, inv, 0..h));
     out.data_mut()
-        .par_chunks_mut(3 * w.max(1))
+        .par_chunks_mut(3 * w.max(1) * BAND_ROWS)
         .enumerate()
-        .for_each_init(
-            || vec![f32::NEG_INFINITY; side * side],
-            |grid, (y0, row)| {
-                let mut row_steps = 0u64;
+        .for_each_init(Scratch::default, |scratch, (band, rows)| {
+            let y_begin = band * BAND_ROWS;
+            let y_end = (y_begin + BAND_ROWS).min(h);
+            let local;
+            let near = match (&global, radius) {
+                (Some(g), _) => g,
+                (None, r) => {
+                    let r = r.unwrap_or(0);
+                    local =
+                        Near::compute(input, inv, y_begin.saturating_sub(r)..(y_end + r).min(h));
+                    &local
+                }
+            };
+            let planes = (kernel == Kernel::Avx2)
+                .then_some(radius)
+                .flatten()
+                .map(|r| {
+                    let rows = y_begin.saturating_sub(r)..(y_end + r).min(h);
+                    input.features.planes(rows, r + 8)
+                });
+            let mut band_steps = 0u64;
+            for y0 in y_begin..y_end {
+                let row = &mut rows[3 * w * (y0 - y_begin)..3 * w * (y0 - y_begin + 1)];
                 for x0 in 0..w {
                     let i0 = y0 * w + x0;
                     let (acc, n) = match radius {
-                        Some(r) => walk_windowed(input, params, &near, inv, grid, r, x0, y0),
-                        None => walk_unbounded(input, params, &near, inv, x0, y0),
+                        Some(r) => {
+                            let win = Window::fill(
+                                input,
+                                inv,
+                                &mut scratch.grid,
+                                &mut scratch.egrid,
+                                planes.as_ref(),
+                                r,
+                                x0,
+                                y0,
+                            );
+                            match kernel {
+                                Kernel::Scalar => walk_windowed(input, params, near, &win),
+                                #[cfg(target_arch = "x86_64")]
+                                // SAFETY: `kernel` is Avx2 only if the CPU reported AVX2 above.
+                                Kernel::Avx2 => unsafe {
+                                    avx2::walk_windowed(
+                                        input,
+                                        params,
+                                        near,
+                                        &win,
+                                        &mut scratch.parts,
+                                    )
+                                },
+                                #[cfg(not(target_arch = "x86_64"))]
+                                Kernel::Avx2 => walk_windowed(input, params, near, &win),
+                            }
+                        }
+                        None => walk_unbounded(input, params, near, inv, x0, y0),
                     };
-                    row_steps += n;
+                    band_steps += n;
                     acc.write(input.color.pixel(i0), &mut row[3 * x0..3 * x0 + 3]);
                 }
-                steps.fetch_add(row_steps, Ordering::Relaxed);
                 on_row();
-            },
-        );
+            }
+            steps.fetch_add(band_steps, Ordering::Relaxed);
+        });
     let stats = WalkStats {
         walks: (w * h) as u64 * params.walks as u64,
         steps: steps.into_inner(),
@@ -315,54 +522,118 @@ pub fn denoise(
     (out, stats)
 }
 
-/// Walks from (x0, y0) with the x0 terms cached in a (2r+3)² grid whose outer ring is −∞.
-#[allow(clippy::too_many_arguments)]
+/// The x0 terms −d(x0, y)²/(2σ²) of one start pixel and their exps, cached in (2r+3)² grids
+/// centred on x0 whose cells outside the window, the image or the mask (and the whole outer ring)
+/// are −∞ (exp: 0).
+struct Window<'g> {
+    grid: &'g [f32],
+    egrid: &'g [f32],
+    side: usize,
+    i0: usize,
+}
+
+impl<'g> Window<'g> {
+    /// `planes` (the band's features as planes) selects the AVX2 row filler; only pass it when the
+    /// CPU has AVX2.
+    #[allow(clippy::too_many_arguments)]
+    fn fill(
+        input: &WalkInput,
+        inv: f32,
+        grid: &'g mut Vec<f32>,
+        egrid: &'g mut Vec<f32>,
+        planes: Option<&FeaturePlanes>,
+        r: usize,
+        x0: usize,
+        y0: usize,
+    ) -> Self {
+        let (w, h) = input.color.dims();
+        let side = 2 * r + 3;
+        let i0 = y0 * w + x0;
+        let blocked = |j: usize| input.mask.is_some_and(|m| m[j]);
+        grid.clear();
+        grid.resize(side * side, f32::NEG_INFINITY);
+        egrid.clear();
+        egrid.resize(side * side, 0.0);
+        let (ylo, yhi) = (y0.saturating_sub(r), (y0 + r).min(h - 1));
+        let (xlo, xhi) = (x0.saturating_sub(r), (x0 + r).min(w - 1));
+        for y in ylo..=yhi {
+            let row = (y + r + 1 - y0) * side + r + 1;
+            let cell = |x: usize| row + x - x0;
+            #[cfg(target_arch = "x86_64")]
+            if let Some(planes) = planes {
+                // SAFETY: planes are only built when the CPU has AVX2.
+                unsafe {
+                    avx2::fill_row(
+                        input,
+                        inv,
+                        planes,
+                        grid,
+                        egrid,
+                        (i0, x0, row),
+                        y,
+                        xlo..xhi + 1,
+                    )
+                };
+                continue;
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            let _ = planes;
+            for x in xlo..=xhi {
+                let j = y * w + x;
+                if !blocked(j) {
+                    let d = input.features.distance(i0, j);
+                    let g = cell(x);
+                    grid[g] = -(d * d) * inv;
+                    egrid[g] = exp_neg(grid[g]);
+                }
+            }
+        }
+        Window {
+            grid,
+            egrid,
+            side,
+            i0,
+        }
+    }
+
+    /// The grid cell of x0.
+    fn center(&self) -> usize {
+        (self.side / 2) * self.side + self.side / 2
+    }
+}
+
+/// Walks from the window's x0, lane by lane (the portable kernel).
 #[inline(never)]
 fn walk_windowed(
     input: &WalkInput,
     params: &WalkParams,
-    near: &[[f32; 8]],
-    inv: f32,
-    grid: &mut [f32],
-    r: usize,
-    x0: usize,
-    y0: usize,
+    near: &Near,
+    win: &Window,
 ) -> (Accum, u64) {
-    let (w, h) = input.color.dims();
-    let side = 2 * r + 3;
-    let i0 = y0 * w + x0;
-    let blocked = |j: usize| input.mask.is_some_and(|m| m[j]);
-    grid.fill(f32::NEG_INFINITY);
-    let (ylo, yhi) = (y0.saturating_sub(r), (y0 + r).min(h - 1));
-    let (xlo, xhi) = (x0.saturating_sub(r), (x0 + r).min(w - 1));
-    for y in ylo..=yhi {
-        let gy = y + r + 1 - y0;
-        for x in xlo..=xhi {
-            let j = y * w + x;
-            if !blocked(j) {
-                let d = input.features.distance(i0, j);
-                grid[gy * side + (x + r + 1 - x0)] = -(d * d) * inv;
-            }
-        }
-    }
-    let goff: [isize; 8] = OFFSETS.map(|(dx, dy)| dy * side as isize + dx);
+    let w = input.color.width();
+    let goff: [isize; 8] = OFFSETS.map(|(dx, dy)| dy * win.side as isize + dx);
     let ioff: [isize; 8] = OFFSETS.map(|(dx, dy)| dy * w as isize + dx);
-    let center = (r + 1) * side + (r + 1);
     let ln_pmin = params.p_min.ln();
-    let mut rng = pixel_rng(input.seed, input.level, i0);
-    let mut acc = Accum::new(input, i0, params);
+    let pkey = pixel_key(input.seed, input.level, win.i0);
+    let mut acc = Accum::new(input, win.i0, params);
     let mut steps = 0u64;
-    for _ in 0..params.walks {
-        let (mut g, mut i) = (center, i0);
+    for walk in 0..params.walks {
+        let key = walk_key(pkey, walk);
+        let (mut g, mut i) = (win.center(), win.i0);
         let mut log_p = 0.0f64;
+        let mut part = Accum::default();
         for step in 1..=params.max_steps {
-            let t = &near[i];
+            let (t, e) = (near.log(i), near.lin(i));
             let mut a = [0.0f32; 8];
+            let mut l = [0.0f32; 8];
             for k in 0..8 {
-                a[k] = grid[(g as isize + goff[k]) as usize] + t[k];
+                let gk = (g as isize + goff[k]) as usize;
+                a[k] = win.grid[gk] + t[k];
+                l[k] = win.egrid[gk] * e[k];
             }
-            let u = uniform(&mut rng);
-            let Some((k, lp)) = choose(&a, u) else { break };
+            let Some((k, lp)) = choose(&a, &l, uniform(key, step)) else {
+                break;
+            };
             log_p += lp as f64;
             if log_p < ln_pmin {
                 break;
@@ -370,17 +641,418 @@ fn walk_windowed(
             g = (g as isize + goff[k]) as usize;
             i = (i as isize + ioff[k]) as usize;
             steps += 1;
-            acc.add(input.color.pixel(i), (log_p / step as f64).exp());
+            part.add(input.color.pixel(i), step_weight(log_p, step));
         }
+        acc.merge(&part);
     }
     (acc, steps)
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    //! The windowed walk with AVX2, bit for bit equal to `super::walk_windowed`.
+    //!
+    //! [`SLOTS`] walks of one start pixel advance in lockstep. For each, the pick is one register
+    //! of 8 neighbour weights (one load of the pixel's precomputed factors, two loads and two blends
+    //! for the window's, a multiply, an in-register prefix sum, a compare and a bit scan). The
+    //! scalar tail of a step (ln of the normaliser, the f64 log-probability, the exp of the weight,
+    //! the f64 colour sums) then runs once for all slots, one slot per lane. Every operation mirrors
+    //! the scalar spec (same IEEE operations in the same order), so the results are bit-identical.
+
+    use std::arch::x86_64::*;
+
+    use std::ops::Range;
+
+    use super::{
+        choose_log, pixel_key, uniform, walk_key, Accum, Near, Window, LINEAR_MIN, OFFSETS,
+    };
+    use crate::fastmath::{EXP_MIN_ARG, EXP_POLY, LN2_HI, LN2_LO, LN_POLY, LOG2E};
+    use crate::features::{FeaturePlanes, DEPTH_EPS};
+    use crate::walk::{WalkInput, WalkParams};
+
+    /// Walks in lockstep per start pixel: one per lane of the f64 tail.
+    const SLOTS: usize = 4;
+
+    /// `super::prefix8` on a register.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn prefix8(e: __m256) -> __m256 {
+        let x = _mm256_add_ps(
+            e,
+            _mm256_castsi256_ps(_mm256_slli_si256::<4>(_mm256_castps_si256(e))),
+        );
+        let x = _mm256_add_ps(
+            x,
+            _mm256_castsi256_ps(_mm256_slli_si256::<8>(_mm256_castps_si256(x))),
+        );
+        let low_total = _mm256_shuffle_ps::<0xff>(x, x);
+        _mm256_add_ps(x, _mm256_permute2f128_ps::<0x08>(low_total, low_total))
+    }
+
+    /// `fastmath::exp_neg` on 4 lanes.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn exp_neg4(x: __m128) -> __m128 {
+        let set = _mm_set1_ps;
+        let (add, mul, sub) = (_mm_add_ps, _mm_mul_ps, _mm_sub_ps);
+        let valid = _mm_cmp_ps::<_CMP_GE_OQ>(x, set(EXP_MIN_ARG));
+        let x = _mm_min_ps(_mm_max_ps(x, set(EXP_MIN_ARG)), _mm_setzero_ps());
+        let ni = _mm_cvttps_epi32(sub(mul(x, set(LOG2E)), set(0.5)));
+        let n = _mm_cvtepi32_ps(ni);
+        let r = sub(sub(x, mul(n, set(LN2_HI))), mul(n, set(LN2_LO)));
+        let [c5, c4, c3, c2, c1, c0] = EXP_POLY;
+        let r2 = mul(r, r);
+        let r4 = mul(r2, r2);
+        let p = add(
+            mul(add(mul(set(c5), r), set(c4)), r4),
+            add(
+                mul(add(mul(set(c3), r), set(c2)), r2),
+                add(mul(set(c1), r), set(c0)),
+            ),
+        );
+        let p = add(add(mul(p, r2), r), set(1.0));
+        let scale = _mm_castsi128_ps(_mm_slli_epi32::<23>(_mm_add_epi32(ni, _mm_set1_epi32(127))));
+        _mm_and_ps(mul(p, scale), valid)
+    }
+
+    /// `fastmath::ln_normal` on 4 lanes.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn ln_normal4(x: __m128) -> __m128 {
+        let set = _mm_set1_ps;
+        let (add, mul, sub) = (_mm_add_ps, _mm_mul_ps, _mm_sub_ps);
+        let bits = _mm_castps_si128(x);
+        let e = _mm_sub_epi32(
+            _mm_and_si128(_mm_srli_epi32::<23>(bits), _mm_set1_epi32(0xff)),
+            _mm_set1_epi32(127),
+        );
+        let m = _mm_castsi128_ps(_mm_or_si128(
+            _mm_and_si128(bits, _mm_set1_epi32(0x007f_ffff)),
+            _mm_set1_epi32(0x3f80_0000),
+        ));
+        let big = _mm_cmp_ps::<_CMP_GT_OQ>(m, set(std::f32::consts::SQRT_2));
+        let m = _mm_blendv_ps(m, mul(m, set(0.5)), big);
+        // `big` lanes are all ones, i.e. −1: subtracting adds 1 to the exponent.
+        let e = _mm_sub_epi32(e, _mm_castps_si128(big));
+        let f = sub(m, set(1.0));
+        let z = mul(f, f);
+        let f4 = mul(z, z);
+        let [c8, c7, c6, c5, c4, c3, c2, c1, c0] = LN_POLY;
+        let lin = |hi: f32, lo: f32| add(mul(set(hi), f), set(lo));
+        let y = add(
+            add(lin(c1, c0), mul(lin(c3, c2), z)),
+            mul(add(lin(c5, c4), mul(lin(c7, c6), z)), f4),
+        );
+        let y = add(y, mul(set(c8), mul(f4, f4)));
+        let ef = _mm_cvtepi32_ps(e);
+        let y = sub(
+            add(mul(mul(y, f), z), mul(ef, set(LN2_LO))),
+            mul(set(0.5), z),
+        );
+        add(add(f, y), mul(ef, set(LN2_HI)))
+    }
+
+    /// `fastmath::exp_neg` on 8 lanes.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn exp_neg8(x: __m256) -> __m256 {
+        let set = _mm256_set1_ps;
+        let (add, mul, sub) = (_mm256_add_ps, _mm256_mul_ps, _mm256_sub_ps);
+        let valid = _mm256_cmp_ps::<_CMP_GE_OQ>(x, set(EXP_MIN_ARG));
+        let x = _mm256_min_ps(_mm256_max_ps(x, set(EXP_MIN_ARG)), _mm256_setzero_ps());
+        let ni = _mm256_cvttps_epi32(sub(mul(x, set(LOG2E)), set(0.5)));
+        let n = _mm256_cvtepi32_ps(ni);
+        let r = sub(sub(x, mul(n, set(LN2_HI))), mul(n, set(LN2_LO)));
+        let [c5, c4, c3, c2, c1, c0] = EXP_POLY;
+        let r2 = mul(r, r);
+        let r4 = mul(r2, r2);
+        let p = add(
+            mul(add(mul(set(c5), r), set(c4)), r4),
+            add(
+                mul(add(mul(set(c3), r), set(c2)), r2),
+                add(mul(set(c1), r), set(c0)),
+            ),
+        );
+        let p = add(add(mul(p, r2), r), set(1.0));
+        let scale = _mm256_castsi256_ps(_mm256_slli_epi32::<23>(_mm256_add_epi32(
+            ni,
+            _mm256_set1_epi32(127),
+        )));
+        _mm256_and_ps(mul(p, scale), valid)
+    }
+
+    /// `features::distance(center, ·)` against the 8 pixels (x .. x+8, y) of `planes`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn distance8(
+        center: &[f32; 16],
+        depth_weight: f32,
+        planes: &FeaturePlanes,
+        x: isize,
+        y: usize,
+    ) -> __m256 {
+        let (add, mul) = (_mm256_add_ps, _mm256_mul_ps);
+        // SAFETY: row8 returns 8 floats; unaligned load.
+        let b = |lane: usize| unsafe { _mm256_loadu_ps(planes.row8(lane, x, y).as_ptr()) };
+        let diff = |lane: usize| _mm256_sub_ps(_mm256_set1_ps(center[lane]), b(lane));
+        let sq = |lane: usize| {
+            let d = diff(lane);
+            mul(d, d)
+        };
+        let abs_mask = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fff_ffff));
+        let abs = |lane: usize| _mm256_and_ps(diff(lane), abs_mask);
+        let color = _mm256_sqrt_ps(add(add(sq(0), sq(1)), sq(2)));
+        let albedo = _mm256_sqrt_ps(add(add(sq(3), sq(4)), sq(5)));
+        let normal = add(add(sq(6), sq(7)), sq(8));
+        let material = add(add(add(abs(9), abs(10)), abs(11)), abs(12));
+        let depth = if depth_weight > 0.0 {
+            let denom = _mm256_max_ps(
+                _mm256_max_ps(_mm256_set1_ps(center[13]), b(13)),
+                _mm256_set1_ps(DEPTH_EPS),
+            );
+            _mm256_div_ps(mul(_mm256_set1_ps(depth_weight), abs(13)), denom)
+        } else {
+            _mm256_setzero_ps()
+        };
+        add(add(add(add(color, albedo), normal), material), depth)
+    }
+
+    /// One row of `Window::fill`: the cells x ∈ `xs` of image row y, compared with start pixel i0,
+    /// 8 at a time, into the grid row whose cell for column x is `row + x − x0`.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[allow(clippy::too_many_arguments)]
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn fill_row(
+        input: &WalkInput,
+        inv: f32,
+        planes: &FeaturePlanes,
+        grid: &mut [f32],
+        egrid: &mut [f32],
+        (i0, x0, row): (usize, usize, usize),
+        y: usize,
+        xs: Range<usize>,
+    ) {
+        let w = input.color.width();
+        let center = input.features.record(i0);
+        let depth_weight = input.features.depth_weight();
+        let blocked = |j: usize| input.mask.is_some_and(|m| m[j]);
+        let neg = _mm256_castsi256_ps(_mm256_set1_epi32(i32::MIN));
+        let mut x = xs.start;
+        while x < xs.end {
+            let n = (xs.end - x).min(8);
+            let d = distance8(center, depth_weight, planes, x as isize, y);
+            let t = _mm256_mul_ps(_mm256_xor_ps(_mm256_mul_ps(d, d), neg), _mm256_set1_ps(inv));
+            let e = exp_neg8(t);
+            let (mut tv, mut ev) = ([0.0f32; 8], [0.0f32; 8]);
+            // SAFETY: both arrays hold 8 floats; unaligned stores.
+            unsafe {
+                _mm256_storeu_ps(tv.as_mut_ptr(), t);
+                _mm256_storeu_ps(ev.as_mut_ptr(), e);
+            }
+            for lane in 0..n {
+                let j = y * w + x + lane;
+                if !blocked(j) {
+                    let g = row + x + lane - x0;
+                    grid[g] = tv[lane];
+                    egrid[g] = ev[lane];
+                }
+            }
+            x += 8;
+        }
+    }
+
+    /// The window values of cell g's 8 neighbours, in lane order: three above, left, right, three below.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn window_block(grid: &[f32], g: usize, side: usize) -> __m256 {
+        let above = &grid[g - side - 1..g - side + 3];
+        let below = &grid[g + side - 2..g + side + 2];
+        // SAFETY: both slices hold 4 floats (bounds-checked above); loads are unaligned.
+        let (above, below) =
+            unsafe { (_mm_loadu_ps(above.as_ptr()), _mm_loadu_ps(below.as_ptr())) };
+        let lo = _mm_blend_ps::<0b1000>(above, _mm_set1_ps(grid[g - 1]));
+        let hi = _mm_blend_ps::<0b0001>(below, _mm_set1_ps(grid[g + 1]));
+        _mm256_set_m128(hi, lo)
+    }
+
+    /// The pick of one step: lane `k`, and `x`, `sum` with log-probability x − ln(sum).
+    struct Pick {
+        k: usize,
+        x: f32,
+        sum: f32,
+    }
+
+    /// `super::choose` for the walk at grid cell g, pixel i, with draw u; `None` ends the walk.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn pick(
+        near: &Near,
+        win: &Window,
+        goff: &[isize; 8],
+        g: usize,
+        i: usize,
+        u: f32,
+    ) -> Option<Pick> {
+        // SAFETY: a Near row is 8 floats; unaligned load.
+        let e = unsafe { _mm256_loadu_ps(near.lin(i).as_ptr()) };
+        let l = _mm256_mul_ps(window_block(win.egrid, g, win.side), e);
+        let c = prefix8(l);
+        let sum = _mm256_cvtss_f32(_mm256_permutevar8x32_ps(c, _mm256_set1_epi32(7)));
+        if sum >= LINEAR_MIN {
+            let target = _mm256_set1_ps(u * sum);
+            let bits = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(target, c));
+            let k = if bits != 0 {
+                bits.trailing_zeros() as usize
+            } else {
+                let nonzero =
+                    _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(l, _mm256_setzero_ps()));
+                31 - nonzero.leading_zeros() as usize
+            };
+            let x = win.grid[(g as isize + goff[k]) as usize] + near.log(i)[k];
+            return Some(Pick { k, x, sum });
+        }
+        let t = near.log(i);
+        let mut a = [0.0f32; 8];
+        for k in 0..8 {
+            a[k] = win.grid[(g as isize + goff[k]) as usize] + t[k];
+        }
+        choose_log(&a, u).map(|(k, x, sum)| Pick { k, x, sum })
+    }
+
+    /// `super::walk_windowed`, bit for bit. `parts` is scratch space for the walks' sums.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn walk_windowed(
+        input: &WalkInput,
+        params: &WalkParams,
+        near: &Near,
+        win: &Window,
+        parts: &mut Vec<Accum>,
+    ) -> (Accum, u64) {
+        let w = input.color.width();
+        let goff: [isize; 8] = OFFSETS.map(|(dx, dy)| dy * win.side as isize + dx);
+        let ioff: [isize; 8] = OFFSETS.map(|(dx, dy)| dy * w as isize + dx);
+        let ln_pmin = _mm256_set1_pd(params.p_min.ln());
+        let pkey = pixel_key(input.seed, input.level, win.i0);
+        parts.clear();
+        parts.resize(params.walks as usize, Accum::default());
+
+        // Slot state, one lane each.
+        let mut walk = [0u32; SLOTS];
+        let mut key = [0u64; SLOTS];
+        let mut g = [win.center(); SLOTS];
+        let mut i = [win.i0; SLOTS];
+        let mut step = [0i32; SLOTS];
+        let mut live = [false; SLOTS];
+        let mut log_p = [0.0f64; SLOTS];
+        let mut sum = [[0.0f64; SLOTS]; 3];
+        let mut weight = [0.0f64; SLOTS];
+
+        let mut next = 0u32;
+        for s in 0..SLOTS {
+            if next < params.walks {
+                (walk[s], key[s], live[s]) = (next, walk_key(pkey, next), true);
+                next += 1;
+            }
+        }
+        let mut steps = 0u64;
+        let max_steps = params.max_steps.min(i32::MAX as u32) as i32;
+        while live.iter().any(|&l| l) {
+            // The picks, slot by slot; a slot that cannot step gets (x, sum) = (0, 1) and is ended below.
+            let mut going = [false; SLOTS];
+            let mut ks = [0usize; SLOTS];
+            let mut xs = [0.0f32; SLOTS];
+            let mut sums = [1.0f32; SLOTS];
+            for s in 0..SLOTS {
+                if !live[s] || step[s] >= max_steps {
+                    continue;
+                }
+                let u = uniform(key[s], step[s] as u32 + 1);
+                if let Some(p) = pick(near, win, &goff, g[s], i[s], u) {
+                    (going[s], ks[s], xs[s], sums[s]) = (true, p.k, p.x, p.sum);
+                }
+            }
+            // The tail, all slots at once: log-probability, stop test, weight, colour sums.
+            let lp = _mm_sub_ps(
+                _mm_loadu_ps(xs.as_ptr()),
+                ln_normal4(_mm_loadu_ps(sums.as_ptr())),
+            );
+            let new_log_p = _mm256_add_pd(_mm256_loadu_pd(log_p.as_ptr()), _mm256_cvtps_pd(lp));
+            let above = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_NLT_UQ>(new_log_p, ln_pmin));
+            let mut moved = [0.0f64; SLOTS];
+            for s in 0..SLOTS {
+                going[s] &= above & (1 << s) != 0;
+                if going[s] {
+                    g[s] = (g[s] as isize + goff[ks[s]]) as usize;
+                    i[s] = (i[s] as isize + ioff[ks[s]]) as usize;
+                    step[s] += 1;
+                    moved[s] = f64::from_bits(u64::MAX);
+                }
+            }
+            let moved = _mm256_loadu_pd(moved.as_ptr());
+            let step_pd = _mm256_cvtepi32_pd(_mm_loadu_si128(step.as_ptr().cast()));
+            let wgt = _mm256_cvtps_pd(exp_neg4(_mm256_cvtpd_ps(_mm256_div_pd(new_log_p, step_pd))));
+            let wgt = _mm256_and_pd(wgt, moved);
+            let px = i.map(|p| input.color.pixel(p));
+            for c in 0..3 {
+                let col = _mm256_set_pd(
+                    px[3][c] as f64,
+                    px[2][c] as f64,
+                    px[1][c] as f64,
+                    px[0][c] as f64,
+                );
+                let acc = _mm256_loadu_pd(sum[c].as_ptr());
+                let acc = _mm256_blendv_pd(acc, _mm256_add_pd(acc, _mm256_mul_pd(wgt, col)), moved);
+                _mm256_storeu_pd(sum[c].as_mut_ptr(), acc);
+            }
+            let wsum = _mm256_loadu_pd(weight.as_ptr());
+            _mm256_storeu_pd(
+                weight.as_mut_ptr(),
+                _mm256_blendv_pd(wsum, _mm256_add_pd(wsum, wgt), moved),
+            );
+            _mm256_storeu_pd(
+                log_p.as_mut_ptr(),
+                _mm256_blendv_pd(_mm256_loadu_pd(log_p.as_ptr()), new_log_p, moved),
+            );
+            // Ended walks hand in their sums; their slot takes the next walk.
+            for s in 0..SLOTS {
+                if !live[s] || going[s] {
+                    continue;
+                }
+                steps += step[s] as u64;
+                parts[walk[s] as usize] = Accum {
+                    sum: [sum[0][s], sum[1][s], sum[2][s]],
+                    weight: weight[s],
+                };
+                (g[s], i[s], step[s], log_p[s], weight[s]) = (win.center(), win.i0, 0, 0.0, 0.0);
+                for c in 0..3 {
+                    sum[c][s] = 0.0;
+                }
+                if next < params.walks {
+                    (walk[s], key[s]) = (next, walk_key(pkey, next));
+                    next += 1;
+                } else {
+                    live[s] = false;
+                }
+            }
+        }
+        let mut acc = Accum::new(input, win.i0, params);
+        for part in parts.iter() {
+            acc.merge(part);
+        }
+        (acc, steps)
+    }
 }
 
 /// Walks from (x0, y0) with no window: the x0 term is computed on the fly.
 fn walk_unbounded(
     input: &WalkInput,
     params: &WalkParams,
-    near: &[[f32; 8]],
+    near: &Near,
     inv: f32,
     x0: usize,
     y0: usize,
@@ -389,31 +1061,38 @@ fn walk_unbounded(
     let i0 = y0 * w + x0;
     let ioff: [isize; 8] = OFFSETS.map(|(dx, dy)| dy * w as isize + dx);
     let ln_pmin = params.p_min.ln();
-    let mut rng = pixel_rng(input.seed, input.level, i0);
+    let pkey = pixel_key(input.seed, input.level, i0);
     let mut acc = Accum::new(input, i0, params);
     let mut steps = 0u64;
-    for _ in 0..params.walks {
+    for walk in 0..params.walks {
+        let key = walk_key(pkey, walk);
         let mut i = i0;
         let mut log_p = 0.0f64;
+        let mut part = Accum::default();
         for step in 1..=params.max_steps {
-            let t = &near[i];
+            let (t, e) = (near.log(i), near.lin(i));
             let mut a = [f32::NEG_INFINITY; 8];
+            let mut l = [0.0f32; 8];
             for k in 0..8 {
                 if t[k] != f32::NEG_INFINITY {
                     let d0 = input.features.distance(i0, (i as isize + ioff[k]) as usize);
-                    a[k] = (-(d0 * d0) * inv) + t[k];
+                    let t0 = -(d0 * d0) * inv;
+                    a[k] = t0 + t[k];
+                    l[k] = exp_neg(t0) * e[k];
                 }
             }
-            let u = uniform(&mut rng);
-            let Some((k, lp)) = choose(&a, u) else { break };
+            let Some((k, lp)) = choose(&a, &l, uniform(key, step)) else {
+                break;
+            };
             log_p += lp as f64;
             if log_p < ln_pmin {
                 break;
             }
             i = (i as isize + ioff[k]) as usize;
             steps += 1;
-            acc.add(input.color.pixel(i), (log_p / step as f64).exp());
+            part.add(input.color.pixel(i), step_weight(log_p, step));
         }
+        acc.merge(&part);
     }
     (acc, steps)
 }
