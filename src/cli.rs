@@ -36,6 +36,29 @@ pub enum Command {
     Render(crate::render::RenderArgs),
     /// Run a pipeline and variants of it (each stage removed, each feature weight zeroed, plain SID) and score them.
     Ablate(AblateArgs),
+    /// Run a pipeline over a grid of parameter values; time and score each setting, plot SSIM against seconds.
+    Sweep(SweepArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct SweepArgs {
+    /// Render set folder.
+    pub dir: PathBuf,
+    #[command(flatten)]
+    pub run: RunOptions,
+    /// A key and its values, e.g. `--vary gsid.walks=5,10,20` (any key `--set` takes; repeatable:
+    /// the sweep runs every combination, the first --vary varying slowest).
+    #[arg(long = "vary", value_name = "KEY=V1,V2,...")]
+    pub varies: Vec<String>,
+    /// Runs of each setting; the median time is kept.
+    #[arg(long, default_value_t = 3)]
+    pub repeat: usize,
+    /// Folder for sweep.csv, sweep.png and sweep.svg (created if missing).
+    #[arg(long, default_value = "sweep-out")]
+    pub out: PathBuf,
+    /// Reference image (default: reference.exr in the folder or one level up).
+    #[arg(long, short)]
+    pub reference: Option<PathBuf>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -146,6 +169,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Render(args) => crate::render::run(&args, cli.quiet),
         Command::Eval(args) => eval(&args),
         Command::Ablate(args) => ablate(&args, cli.quiet),
+        Command::Sweep(args) => sweep(&args, cli.quiet),
         Command::Pipelines => {
             list_pipelines();
             Ok(())
@@ -277,6 +301,94 @@ fn ablate(args: &AblateArgs, quiet: bool) -> Result<()> {
         };
         pending.write_bytes(text.as_bytes())?;
     }
+    Ok(())
+}
+
+/// The files `sweep` writes into its `--out` folder.
+const SWEEP_FILES: [&str; 3] = ["sweep.csv", "sweep.png", "sweep.svg"];
+
+fn sweep(args: &SweepArgs, quiet: bool) -> Result<()> {
+    use crate::sweep;
+    // Everything that can be wrong with the arguments is found before the render set is even read.
+    if args.repeat == 0 {
+        return Err(Error::config("--repeat", "must be at least 1"));
+    }
+    let base = args.run.spec()?;
+    base.build()?;
+    let axes = sweep::parse_axes(&args.varies, &args.run.sets)?;
+    let settings = sweep::settings(&base, &axes)?;
+    let set = io::load_render_set(&args.dir)?;
+    let reference = reference_for(&set, args.reference.as_ref())?;
+    if args.out.exists() && !args.out.is_dir() {
+        return Err(Error::output(&args.out, "is not a folder"));
+    }
+    let created = !args.out.exists();
+    std::fs::create_dir_all(&args.out).map_err(|e| Error::output(&args.out, e))?;
+    let result = sweep_into(args, quiet, &set, &reference, &axes, &settings);
+    if result.is_err() && created {
+        // Leave nothing behind: the folder is empty again once the reserved files are dropped.
+        let _ = std::fs::remove_dir(&args.out);
+    }
+    result
+}
+
+fn sweep_into(
+    args: &SweepArgs,
+    quiet: bool,
+    set: &io::RenderSet,
+    reference: &crate::image::Image,
+    axes: &[crate::sweep::Axis],
+    settings: &[crate::sweep::Setting],
+) -> Result<()> {
+    use crate::sweep;
+    let [csv, png, svg] = SWEEP_FILES.map(|f| args.out.join(f));
+    // Reserved before the work, so an unwritable folder fails fast and nothing half-written remains.
+    let (csv_out, png_out, svg_out) = (
+        PendingOutput::create(&csv)?,
+        PendingOutput::create(&png)?,
+        PendingOutput::create(&svg)?,
+    );
+    if !quiet {
+        for line in &set.notes {
+            eprintln!("gsid: {line}");
+        }
+    }
+    let runs = (settings.len() * args.repeat) as u64;
+    let progress = crate::progress::Progress::new(!quiet, "sweep", runs);
+    let rows = args.run.in_pool(|| {
+        sweep::run(
+            settings,
+            &set.buffers,
+            reference,
+            args.run.seed,
+            args.repeat,
+            &|| progress.inc(1),
+        )
+    })??;
+    progress.finish();
+    let pipeline = settings.first().map_or("", |s| s.spec.name.as_str());
+    let title = format!(
+        "SSIM vs seconds — {} — pipeline {pipeline}",
+        args.dir.display()
+    );
+    let png_bytes = sweep::plot_png(&rows, &title)?;
+    let svg_text = sweep::plot_svg(&rows, &title)?;
+    csv_out.write_bytes(sweep::csv(axes, &rows).as_bytes())?;
+    png_out.write_bytes(&png_bytes)?;
+    svg_out.write_bytes(svg_text.as_bytes())?;
+    if !quiet {
+        for line in sweep::notes(&rows) {
+            eprintln!("gsid: {line}");
+        }
+    }
+    print!("{}", sweep::table(&rows));
+    println!(
+        "wrote {}, {}, {} (seconds: median of {} in-process runs)",
+        csv.display(),
+        png.display(),
+        svg.display(),
+        args.repeat
+    );
     Ok(())
 }
 

@@ -18,6 +18,7 @@ pub mod pyramid;
 pub mod render;
 pub mod sanitize;
 pub mod stages;
+pub mod sweep;
 pub mod walk;
 
 pub use crate::buffers::Buffers;
