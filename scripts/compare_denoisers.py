@@ -1,0 +1,472 @@
+"""Compare gsid with Intel Open Image Denoise and BM3D on the same fixtures, scored the same way.
+
+In one run, for every chosen fixture and sample count (render set fixtures/<name>/spp<N>/), this
+denoises the noisy colour with
+
+  * Intel Open Image Denoise (PyPI `pyoidn`, which ships OIDN's CPU library): the `RT` filter, hdr=true,
+    colour + albedo + normal (first-hit auxiliary buffers, as OIDN recommends), CPU device, default
+    quality (high) and cleanAux=false (our albedo/normal are averaged over the same few samples, so
+    they carry some noise of their own);
+  * BM3D (PyPI `bm3d`, `bm3d.bm3d_rgb`), a Gaussian-noise denoiser, on a display-range view of the
+    colour (see "BM3D" below);
+  * gsid's named pipelines (`--pipelines`, default `fast balanced quality full`; a name that
+    `gsid pipelines` does not list is skipped with a note),
+
+and scores every output, plus the noisy input, with the repository's own metric
+(`target/release/gsid eval IMAGE.exr --reference REF.exr --json`: SSIM on the clipped sRGB view,
+relMSE on linear HDR, ALGORITHM.md §5), so all methods are judged by identical code. OIDN and BM3D
+outputs are written as float32 EXR to a temporary folder first. The result is a markdown table on
+stdout (progress goes to stderr); `--json PATH` also writes every row and the run's header as JSON.
+
+Install and run, from the repository root (Python 3.11):
+
+    pip install -r scripts/requirements-compare.txt && python3 scripts/compare_denoisers.py
+    python3 scripts/compare_denoisers.py --fixtures mitsuba-cornell --spp 1,4,16,64 --pipelines sid gsid full
+
+Options: --fixtures a,b (default: mitsuba-cornell,cornell,caustics,textured,detail), --spp 1,4
+(default 4), --pipelines NAME..., --runs N (timed runs of OIDN and gsid, default 5), --bm3d-runs N
+(default 1), --bm3d-curve srgb|reinhard, --no-build, --json PATH, --keep DIR (keep the outputs).
+
+What "seconds" means for each method, and why:
+
+  * OIDN: the median of --runs executions of the already committed filter (oidnExecuteFilter only).
+    The device and the filter are created, given their images and committed beforehand, as a renderer
+    that denoises every frame keeps them. This is the figure OIDN is usually quoted by, and it is the
+    best case for OIDN. The column "process s" also gives the whole-process cost of a one-shot
+    denoise (a fresh `python3` that imports pyoidn, reads the three EXRs, creates device and filter,
+    runs once and writes the EXR; median of --runs) for a like-for-like comparison with gsid's figure.
+  * BM3D: the bm3d_rgb call only (median of --bm3d-runs, default 1, because it takes seconds); the
+    tone curve, the noise estimate and EXR I/O are left out. BM3D is a reference point for quality,
+    not a fast method.
+  * gsid: the wall time of the whole `gsid denoise SETDIR --pipeline NAME -o OUT.exr --quiet`
+    process, reading six EXRs and writing one included (median of --runs). That is how a user or a
+    render farm calls it, and gsid has no library entry point that keeps state between frames.
+    It therefore slightly flatters OIDN's "seconds" relative to gsid's; compare "process s" too.
+
+OIDN and gsid both use every core by default; the header prints the core count, the CPU model and
+the load average, because this machine is shared and a busy neighbour slows every figure.
+
+BM3D: BM3D assumes additive white Gaussian noise of known σ on an image in a fixed range, and path
+tracing gives neither (the noise is signal dependent and heavy tailed, and the colour is HDR). It is
+run on the display view the metric scores, clip to [0, 1] then the sRGB transfer curve (default
+`--bm3d-curve srgb`), and the result is sent back through the inverse curve to linear. So anything
+brighter than 1 (the light itself) comes back as 1, which costs relMSE at the light but nothing in
+SSIM, whose view clips there anyway. `--bm3d-curve reinhard` (x/(1+x), inverted as y/(1-y), keeps
+HDR) is the alternative; on mitsuba-cornell, caustics and textured at 4 spp it gave lower SSIM
+(0.54/0.55/0.56 against 0.60/0.61/0.66 with sRGB) and higher relMSE, which is why sRGB is the
+default. σ is estimated from the noisy image alone, never from the reference: scikit-image's
+wavelet (median absolute deviation) estimator `estimate_sigma` on the tone-mapped image, per
+channel, averaged. Being a robust estimator, it tracks the bulk of the noise and ignores the
+fireflies (on mitsuba-cornell at 4 spp it gives 0.045 where the standard deviation of
+(noisy − reference) in the same view is 0.070), so BM3D leaves the bright outliers largely in place.
+
+Errors: a missing fixture, sample count, reference, gsid binary or Python package gives a one-line
+message on stderr and exit code 2.
+"""
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+ALL_FIXTURES = ["mitsuba-cornell", "cornell", "caustics", "textured", "detail"]
+DEFAULT_PIPELINES = ["fast", "balanced", "quality", "full"]
+CHANNELS = ("R", "G", "B")
+
+
+def fail(message, code=2):
+    print(f"compare_denoisers: error: {message}", file=sys.stderr)
+    sys.exit(code)
+
+
+def note(message):
+    print(message, file=sys.stderr, flush=True)
+
+
+# ---------------------------------------------------------------------------- EXR I/O
+
+def read_rgb(path):
+    """An EXR's R, G, B channels as a contiguous float32 HxWx3 array (row 0 = top row)."""
+    import numpy as np
+    import OpenEXR
+
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        ch = f.channels()
+        missing = [c for c in CHANNELS if c not in ch]
+        if missing:
+            fail(f"{path}: no channel {','.join(missing)} (has {','.join(sorted(ch))})")
+        return np.ascontiguousarray(np.stack([ch[c].pixels for c in CHANNELS], axis=-1), dtype=np.float32)
+
+
+def write_rgb(path, image):
+    """Write HxWx3 as a float32, zip-compressed RGB EXR."""
+    import numpy as np
+    import OpenEXR
+
+    image = np.asarray(image, dtype=np.float32)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    channels = {c: np.ascontiguousarray(image[..., i]) for i, c in enumerate(CHANNELS)}
+    with OpenEXR.File(header, channels) as f:
+        f.write(str(path))
+
+
+def sanitize_color(color):
+    """NaN/Inf/negative colour to 0, as gsid does before denoising (the fixtures have none)."""
+    import numpy as np
+
+    color = np.nan_to_num(color, nan=0.0, posinf=0.0, neginf=0.0)
+    return np.ascontiguousarray(np.maximum(color, 0.0), dtype=np.float32)
+
+
+# ---------------------------------------------------------------------------- OIDN
+
+def oidn_filter(device, color, albedo, normal, output):
+    """An RT filter with hdr=true on colour + albedo + normal, committed and ready to execute."""
+    import pyoidn
+
+    flt = pyoidn.Filter(device, pyoidn.OIDN_FILTER_TYPE_RT)
+    flt.set_image(pyoidn.OIDN_IMAGE_COLOR, color, pyoidn.OIDN_FORMAT_FLOAT3)
+    flt.set_image(pyoidn.OIDN_IMAGE_ALBEDO, albedo, pyoidn.OIDN_FORMAT_FLOAT3)
+    flt.set_image(pyoidn.OIDN_IMAGE_NORMAL, normal, pyoidn.OIDN_FORMAT_FLOAT3)
+    flt.set_image(pyoidn.OIDN_IMAGE_OUTPUT, output, pyoidn.OIDN_FORMAT_FLOAT3)
+    # set_bool, not set_value: pyoidn's set_value sends a bool through set_int.
+    flt.set_bool("hdr", True)
+    flt.commit()
+    return flt
+
+
+def oidn_check(device, what):
+    err = device.get_error()
+    if err is not None:
+        fail(f"OIDN {what}: {err}", 1)
+
+
+def load_set(setdir):
+    color = sanitize_color(read_rgb(setdir / "color.exr"))
+    albedo = read_rgb(setdir / "albedo.exr")
+    normal = read_rgb(setdir / "normal.exr")
+    return color, albedo, normal
+
+
+def oidn_denoise(device, setdir, out_path, runs):
+    """Denoise with a committed filter; returns the median seconds of `runs` executions."""
+    import numpy as np
+
+    color, albedo, normal = load_set(setdir)
+    output = np.zeros_like(color)
+    flt = oidn_filter(device, color, albedo, normal, output)
+    oidn_check(device, f"filter setup for {setdir}")
+    times = []
+    try:
+        for _ in range(runs):
+            start = time.perf_counter()
+            flt.execute()
+            times.append(time.perf_counter() - start)
+        oidn_check(device, f"filter execution on {setdir}")
+    finally:
+        flt.release()
+    write_rgb(out_path, output)
+    return statistics.median(times), times
+
+
+def oidn_once(setdir, out_path):
+    """One-shot denoise in this process (run as a subprocess to time the whole process)."""
+    import numpy as np
+    import pyoidn
+
+    device = pyoidn.Device(pyoidn.OIDN_DEVICE_TYPE_CPU)
+    device.commit()
+    color, albedo, normal = load_set(Path(setdir))
+    output = np.zeros_like(color)
+    flt = oidn_filter(device, color, albedo, normal, output)
+    flt.execute()
+    oidn_check(device, f"one-shot denoise of {setdir}")
+    flt.release()
+    device.release()
+    write_rgb(out_path, output)
+
+
+# ---------------------------------------------------------------------------- BM3D
+
+def srgb(x):
+    import numpy as np
+
+    x = np.clip(x, 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
+
+
+def srgb_inverse(y):
+    import numpy as np
+
+    y = np.clip(y, 0.0, 1.0)
+    return np.where(y <= 0.04045, y / 12.92, np.power((y + 0.055) / 1.055, 2.4))
+
+
+def reinhard(x):
+    return x / (1.0 + x)
+
+
+def reinhard_inverse(y):
+    import numpy as np
+
+    y = np.clip(y, 0.0, 0.999)  # 0.999 ↔ 999 in linear, far above any fixture's light
+    return y / (1.0 - y)
+
+
+CURVES = {"srgb": (srgb, srgb_inverse), "reinhard": (reinhard, reinhard_inverse)}
+
+
+def bm3d_denoise(setdir, out_path, runs, curve):
+    """BM3D on the tone-mapped colour; returns (median seconds of the bm3d_rgb call, σ, times)."""
+    import bm3d
+    import numpy as np
+    from skimage.restoration import estimate_sigma
+
+    forward, inverse = CURVES[curve]
+    noisy = forward(sanitize_color(read_rgb(setdir / "color.exr")).astype(np.float64))
+    sigma = float(np.mean(estimate_sigma(noisy, channel_axis=-1, average_sigmas=False)))
+    times = []
+    for _ in range(runs):
+        start = time.perf_counter()
+        denoised = bm3d.bm3d_rgb(noisy, sigma)
+        times.append(time.perf_counter() - start)
+    write_rgb(out_path, inverse(denoised))
+    return statistics.median(times), sigma, times
+
+
+# ---------------------------------------------------------------------------- gsid
+
+def gsid_eval(gsid, image, reference):
+    proc = subprocess.run([str(gsid), "eval", str(image), "--reference", str(reference), "--json"],
+                          capture_output=True, text=True, cwd=ROOT)
+    if proc.returncode != 0:
+        fail(f"gsid eval {image}: {proc.stderr.strip() or proc.stdout.strip()}", proc.returncode)
+    return json.loads(proc.stdout)
+
+
+def gsid_pipelines(gsid):
+    proc = subprocess.run([str(gsid), "pipelines"], capture_output=True, text=True, cwd=ROOT)
+    if proc.returncode != 0:
+        fail(f"gsid pipelines: {proc.stderr.strip()}", 1)
+    return [line.split()[0] for line in proc.stdout.splitlines() if line.strip()]
+
+
+def gsid_denoise(gsid, setdir, pipeline, out_path, runs):
+    times = []
+    for _ in range(runs):
+        cmd = [str(gsid), "denoise", str(setdir), "--pipeline", pipeline, "-o", str(out_path), "--quiet"]
+        start = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+        times.append(time.perf_counter() - start)
+        if proc.returncode != 0:
+            fail(f"{' '.join(cmd)}: {proc.stderr.strip()}", proc.returncode)
+    return statistics.median(times), times
+
+
+# ---------------------------------------------------------------------------- run
+
+def cpu_model():
+    """The CPU's model name and its widest vector ISA (OIDN's CPU kernels depend on it)."""
+    model, flags = None, set()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name") and model is None:
+                model = line.split(":", 1)[1].strip()
+            elif line.startswith("flags") and not flags:
+                flags = set(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    if model is None:
+        import platform
+
+        model = platform.processor() or "unknown CPU"
+    isa = "AVX-512" if "avx512f" in flags else "AVX2" if "avx2" in flags else None
+    return f"{model} ({isa})" if isa else model
+
+
+def git_commit():
+    proc = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT)
+    return proc.stdout.strip() if proc.returncode == 0 else "unknown"
+
+
+def parse_args(argv):
+    p = argparse.ArgumentParser(description="Compare gsid with Open Image Denoise and BM3D (see the file's docstring).")
+    p.add_argument("--fixtures", default=",".join(ALL_FIXTURES), help="comma-separated fixture names")
+    p.add_argument("--spp", default="4", help="comma-separated sample counts (folders spp<N>)")
+    p.add_argument("--pipelines", nargs="+", default=DEFAULT_PIPELINES, help="gsid pipeline names")
+    p.add_argument("--runs", type=int, default=5, help="timed runs of OIDN and gsid (median)")
+    p.add_argument("--bm3d-runs", type=int, default=1, help="timed runs of BM3D (median)")
+    p.add_argument("--bm3d-curve", choices=sorted(CURVES), default="srgb", help="tone curve BM3D runs under")
+    p.add_argument("--no-build", action="store_true", help="do not run cargo build first")
+    p.add_argument("--json", metavar="PATH", help="also write the rows as JSON")
+    p.add_argument("--keep", metavar="DIR", help="keep the denoised images in DIR")
+    p.add_argument("--oidn-once", nargs=2, metavar=("SETDIR", "OUT"), help=argparse.SUPPRESS)
+    args = p.parse_args(argv)
+    if args.runs < 1 or args.bm3d_runs < 1:
+        fail("--runs and --bm3d-runs must be at least 1")
+    return args
+
+
+def main(argv=None):
+    args = parse_args(argv)
+    if args.oidn_once:
+        oidn_once(*args.oidn_once)
+        return 0
+
+    # Check every input before any slow work.
+    try:
+        spps = [int(s) for s in args.spp.split(",") if s.strip()]
+    except ValueError:
+        fail(f"--spp {args.spp!r}: expected comma-separated integers such as 1,4,16")
+    fixtures = [f.strip() for f in args.fixtures.split(",") if f.strip()]
+    cases = []
+    for fx in fixtures:
+        fdir = ROOT / "fixtures" / fx
+        if not fdir.is_dir():
+            fail(f"fixture {fx!r}: no folder {fdir} (known: {', '.join(ALL_FIXTURES)})")
+        ref = fdir / "reference.exr"
+        if not ref.is_file():
+            fail(f"fixture {fx!r}: no reference {ref}")
+        for spp in spps:
+            setdir = fdir / f"spp{spp}"
+            for buf in ("color", "albedo", "normal"):
+                if not (setdir / f"{buf}.exr").is_file():
+                    fail(f"fixture {fx!r} at {spp} spp: no {setdir / (buf + '.exr')}")
+            cases.append((fx, spp, setdir, ref))
+    try:
+        import numpy as np
+        import OpenEXR  # noqa: F401
+        import bm3d  # noqa: F401
+        import pyoidn
+        import skimage  # noqa: F401
+    except ImportError as e:
+        fail(f"missing Python package ({e}); run: pip install -r scripts/requirements-compare.txt")
+
+    gsid = ROOT / "target" / "release" / "gsid"
+    if not args.no_build:
+        note("building gsid (cargo build --release --quiet --bin gsid) ...")
+        try:
+            proc = subprocess.run(["cargo", "build", "--release", "--quiet", "--bin", "gsid"], cwd=ROOT)
+        except FileNotFoundError:
+            fail("cargo not found: install Rust, or build target/release/gsid and pass --no-build")
+        if proc.returncode != 0:
+            fail("cargo build --release --bin gsid failed (see above)", 1)
+    if not (gsid.is_file() and os.access(gsid, os.X_OK)):
+        fail(f"no gsid binary at {gsid}: run cargo build --release --bin gsid (or drop --no-build)")
+
+    available = gsid_pipelines(gsid)
+    pipelines = [p for p in args.pipelines if p in available]
+    skipped = [p for p in args.pipelines if p not in available]
+    for p in skipped:
+        note(f"note: gsid has no pipeline {p!r} (gsid pipelines lists: {', '.join(available)}); skipped")
+
+    device = pyoidn.Device(pyoidn.OIDN_DEVICE_TYPE_CPU)
+    device.commit()
+    oidn_check(device, "CPU device creation")
+    oidn_version = device.get_int("version")
+    oidn_threads = device.get_int("numThreads")
+    load_start = os.getloadavg()
+
+    from importlib.metadata import version as pkg_version
+
+    header = {
+        "cpu": cpu_model(),
+        "cores": os.cpu_count(),
+        "load_average_start": [round(x, 2) for x in load_start],
+        "oidn": f"{oidn_version // 10000}.{oidn_version // 100 % 100}.{oidn_version % 100}",
+        "oidn_threads": oidn_threads,
+        "pyoidn": pkg_version("pyoidn"),
+        "bm3d": pkg_version("bm3d"),
+        "numpy": np.__version__,
+        "python": sys.version.split()[0],
+        "gsid_commit": git_commit(),
+        "runs": args.runs,
+        "bm3d_runs": args.bm3d_runs,
+        "bm3d_curve": args.bm3d_curve,
+        "pipelines_run": pipelines,
+        "pipelines_skipped": skipped,
+    }
+
+    rows = []
+    tmp = tempfile.TemporaryDirectory(prefix="compare_denoisers.")
+    outdir = Path(args.keep) if args.keep else Path(tmp.name)
+    outdir.mkdir(parents=True, exist_ok=True)
+
+    def add(fx, spp, method, image, ref, seconds=None, process=None, **extra):
+        score = gsid_eval(gsid, image, ref)
+        row = {"fixture": fx, "spp": spp, "method": method, "ssim": score["ssim"], "psnr": score["psnr"],
+               "relmse": score["relmse"], "seconds": seconds, "process_seconds": process, **extra}
+        rows.append(row)
+        secs = "" if seconds is None else f" {seconds:.3f} s"
+        note(f"  {fx} spp{spp} {method}: SSIM {row['ssim']:.4f} relMSE {row['relmse']:.5f}{secs}")
+
+    for fx, spp, setdir, ref in cases:
+        note(f"{fx} spp{spp}:")
+        stem = outdir / f"{fx}-spp{spp}"
+        add(fx, spp, "input (noisy)", setdir / "color.exr", ref)
+
+        out = Path(f"{stem}-oidn.exr")
+        secs, times = oidn_denoise(device, setdir, out, args.runs)
+        ptimes = []
+        for _ in range(args.runs):
+            start = time.perf_counter()
+            proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--oidn-once", str(setdir),
+                                   f"{stem}-oidn-process.exr"], capture_output=True, text=True, cwd=ROOT)
+            ptimes.append(time.perf_counter() - start)
+            if proc.returncode != 0:
+                fail(f"one-shot OIDN process on {setdir}: {proc.stderr.strip()}", 1)
+        add(fx, spp, "OIDN (RT, hdr, albedo+normal)", out, ref, secs, statistics.median(ptimes),
+            times=times, process_times=ptimes)
+
+        out = Path(f"{stem}-bm3d.exr")
+        secs, sigma, times = bm3d_denoise(setdir, out, args.bm3d_runs, args.bm3d_curve)
+        add(fx, spp, f"BM3D (σ̂ {sigma:.3f}, {args.bm3d_curve})", out, ref, secs, times=times, sigma=sigma)
+
+        for p in pipelines:
+            out = Path(f"{stem}-gsid-{p}.exr")
+            secs, times = gsid_denoise(gsid, setdir, p, out, args.runs)
+            add(fx, spp, f"gsid `{p}`", out, ref, secs, secs, times=times)
+
+    device.release()
+    header["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
+
+    def fmt(x, spec):
+        return "—" if x is None else format(x, spec)
+
+    print(f"{header['cpu']}, {header['cores']} cores; load average {header['load_average_start'][0]:.2f} "
+          f"at start, {header['load_average_end'][0]:.2f} at end. OIDN {header['oidn']} (pyoidn "
+          f"{header['pyoidn']}, {oidn_threads} threads), bm3d {header['bm3d']}, gsid {header['gsid_commit']}.")
+    if skipped:
+        print(f"Skipped gsid pipelines (not listed by `gsid pipelines`): {', '.join(skipped)}.")
+    print()
+    print("| fixture | spp | method | SSIM | relMSE | seconds¹ | process s² |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    for r in rows:
+        print(f"| {r['fixture']} | {r['spp']} | {r['method']} | {r['ssim']:.4f} | {r['relmse']:.5f} | "
+              f"{fmt(r['seconds'], '.3f')} | {fmt(r['process_seconds'], '.2f')} |")
+    print()
+    print(f"¹ OIDN: oidnExecuteFilter only, device and filter created and committed beforehand, median of "
+          f"{args.runs}. BM3D: the bm3d_rgb call only, median of {args.bm3d_runs}. gsid: wall time of the whole "
+          f"`gsid denoise SET --pipeline NAME -o OUT.exr --quiet` process (EXR reading and writing included), "
+          f"median of {args.runs}.")
+    print(f"² Whole process of a one-shot denoise, median of {args.runs}: for OIDN a fresh python3 that imports "
+          f"pyoidn, reads color/albedo/normal, creates device and filter, runs once and writes the EXR; for gsid "
+          f"the same figure as ¹. Scores: `gsid eval --json` against fixtures/NAME/reference.exr (SSIM on the "
+          f"clipped sRGB view, relMSE on linear HDR). BM3D: σ̂ estimated from the noisy image "
+          f"(skimage estimate_sigma, channel mean) under the {args.bm3d_curve} curve.")
+
+    if args.json:
+        Path(args.json).write_text(json.dumps({"header": header, "rows": rows}, indent=1) + "\n")
+        note(f"wrote {args.json}")
+    tmp.cleanup()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
