@@ -317,12 +317,16 @@ pub struct FeaturePlanes {
 }
 
 impl FeaturePlanes {
-    /// Lane `lane` of the 8 pixels (x .. x+8, y); x may reach `pad` columns beyond either side.
+    /// Where pixel (x, y) sits in every plane; x may reach `pad` columns beyond either side.
     #[inline]
-    pub fn row8(&self, lane: usize, x: isize, y: usize) -> &[f32] {
-        let start = lane * self.plane_len
-            + (y - self.first_row) * self.stride
-            + (x + self.pad as isize) as usize;
+    pub fn offset(&self, x: isize, y: usize) -> usize {
+        (y - self.first_row) * self.stride + (x + self.pad as isize) as usize
+    }
+
+    /// Lane `lane` of the 8 pixels starting at `offset`.
+    #[inline]
+    pub fn lane8(&self, lane: usize, offset: usize) -> &[f32] {
+        let start = lane * self.plane_len + offset;
         &self.data[start..start + 8]
     }
 }

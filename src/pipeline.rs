@@ -40,6 +40,9 @@ pub const BUILTIN: &[(&str, &str)] = &[
     ),
     ("pyramid", include_str!("../pipelines/pyramid.toml")),
     ("full", include_str!("../pipelines/full.toml")),
+    ("fast", include_str!("../pipelines/fast.toml")),
+    ("balanced", include_str!("../pipelines/balanced.toml")),
+    ("quality", include_str!("../pipelines/quality.toml")),
 ];
 
 /// One stage as written in the file.

@@ -670,8 +670,8 @@ mod avx2 {
     use crate::features::{FeaturePlanes, DEPTH_EPS};
     use crate::walk::{WalkInput, WalkParams};
 
-    /// Walks in lockstep per start pixel: one per lane of the f64 tail.
-    const SLOTS: usize = 4;
+    /// Walks in lockstep per start pixel (a multiple of 4, the lanes of the f64 tail).
+    const SLOTS: usize = 16;
 
     /// `super::prefix8` on a register.
     #[inline]
@@ -792,8 +792,9 @@ mod avx2 {
         y: usize,
     ) -> __m256 {
         let (add, mul) = (_mm256_add_ps, _mm256_mul_ps);
-        // SAFETY: row8 returns 8 floats; unaligned load.
-        let b = |lane: usize| unsafe { _mm256_loadu_ps(planes.row8(lane, x, y).as_ptr()) };
+        let at = planes.offset(x, y);
+        // SAFETY: lane8 returns 8 floats; unaligned load.
+        let b = |lane: usize| unsafe { _mm256_loadu_ps(planes.lane8(lane, at).as_ptr()) };
         let diff = |lane: usize| _mm256_sub_ps(_mm256_set1_ps(center[lane]), b(lane));
         let sq = |lane: usize| {
             let d = diff(lane);
@@ -851,12 +852,16 @@ mod avx2 {
                 _mm256_storeu_ps(tv.as_mut_ptr(), t);
                 _mm256_storeu_ps(ev.as_mut_ptr(), e);
             }
-            for lane in 0..n {
-                let j = y * w + x + lane;
-                if !blocked(j) {
-                    let g = row + x + lane - x0;
-                    grid[g] = tv[lane];
-                    egrid[g] = ev[lane];
+            let g = row + x - x0;
+            if input.mask.is_none() {
+                grid[g..g + n].copy_from_slice(&tv[..n]);
+                egrid[g..g + n].copy_from_slice(&ev[..n]);
+            } else {
+                for lane in 0..n {
+                    if !blocked(y * w + x + lane) {
+                        grid[g + lane] = tv[lane];
+                        egrid[g + lane] = ev[lane];
+                    }
                 }
             }
             x += 8;
@@ -952,8 +957,10 @@ mod avx2 {
         let mut sum = [[0.0f64; SLOTS]; 3];
         let mut weight = [0.0f64; SLOTS];
 
+        // Slots beyond the walk count would only add idle lanes to every round.
+        let slots = (params.walks as usize).min(SLOTS).div_ceil(4) * 4;
         let mut next = 0u32;
-        for s in 0..SLOTS {
+        for s in 0..slots {
             if next < params.walks {
                 (walk[s], key[s], live[s]) = (next, walk_key(pkey, next), true);
                 next += 1;
@@ -961,13 +968,14 @@ mod avx2 {
         }
         let mut steps = 0u64;
         let max_steps = params.max_steps.min(i32::MAX as u32) as i32;
+        let color = input.color.data();
         while live.iter().any(|&l| l) {
             // The picks, slot by slot; a slot that cannot step gets (x, sum) = (0, 1) and is ended below.
             let mut going = [false; SLOTS];
             let mut ks = [0usize; SLOTS];
             let mut xs = [0.0f32; SLOTS];
             let mut sums = [1.0f32; SLOTS];
-            for s in 0..SLOTS {
+            for s in 0..slots {
                 if !live[s] || step[s] >= max_steps {
                     continue;
                 }
@@ -976,50 +984,51 @@ mod avx2 {
                     (going[s], ks[s], xs[s], sums[s]) = (true, p.k, p.x, p.sum);
                 }
             }
-            // The tail, all slots at once: log-probability, stop test, weight, colour sums.
-            let lp = _mm_sub_ps(
-                _mm_loadu_ps(xs.as_ptr()),
-                ln_normal4(_mm_loadu_ps(sums.as_ptr())),
-            );
-            let new_log_p = _mm256_add_pd(_mm256_loadu_pd(log_p.as_ptr()), _mm256_cvtps_pd(lp));
-            let above = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_NLT_UQ>(new_log_p, ln_pmin));
-            let mut moved = [0.0f64; SLOTS];
-            for s in 0..SLOTS {
-                going[s] &= above & (1 << s) != 0;
-                if going[s] {
-                    g[s] = (g[s] as isize + goff[ks[s]]) as usize;
-                    i[s] = (i[s] as isize + ioff[ks[s]]) as usize;
-                    step[s] += 1;
-                    moved[s] = f64::from_bits(u64::MAX);
-                }
-            }
-            let moved = _mm256_loadu_pd(moved.as_ptr());
-            let step_pd = _mm256_cvtepi32_pd(_mm_loadu_si128(step.as_ptr().cast()));
-            let wgt = _mm256_cvtps_pd(exp_neg4(_mm256_cvtpd_ps(_mm256_div_pd(new_log_p, step_pd))));
-            let wgt = _mm256_and_pd(wgt, moved);
-            let px = i.map(|p| input.color.pixel(p));
-            for c in 0..3 {
-                let col = _mm256_set_pd(
-                    px[3][c] as f64,
-                    px[2][c] as f64,
-                    px[1][c] as f64,
-                    px[0][c] as f64,
+            // The tail, four slots per register: log-probability, stop test, weight, colour sums.
+            for o in (0..slots).step_by(4) {
+                let q = o..o + 4;
+                let lp = _mm_sub_ps(
+                    _mm_loadu_ps(xs[q.clone()].as_ptr()),
+                    ln_normal4(_mm_loadu_ps(sums[q.clone()].as_ptr())),
                 );
-                let acc = _mm256_loadu_pd(sum[c].as_ptr());
-                let acc = _mm256_blendv_pd(acc, _mm256_add_pd(acc, _mm256_mul_pd(wgt, col)), moved);
-                _mm256_storeu_pd(sum[c].as_mut_ptr(), acc);
+                let old_log_p = _mm256_loadu_pd(log_p[q.clone()].as_ptr());
+                let new_log_p = _mm256_add_pd(old_log_p, _mm256_cvtps_pd(lp));
+                let above = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_NLT_UQ>(new_log_p, ln_pmin));
+                let mut moved = [0.0f64; 4];
+                for (lane, s) in q.clone().enumerate() {
+                    going[s] &= above & (1 << lane) != 0;
+                    if going[s] {
+                        g[s] = (g[s] as isize + goff[ks[s]]) as usize;
+                        i[s] = (i[s] as isize + ioff[ks[s]]) as usize;
+                        step[s] += 1;
+                        moved[lane] = f64::from_bits(u64::MAX);
+                    }
+                }
+                let moved = _mm256_loadu_pd(moved.as_ptr());
+                let step_pd = _mm256_cvtepi32_pd(_mm_loadu_si128(step[q.clone()].as_ptr().cast()));
+                let wgt =
+                    _mm256_cvtps_pd(exp_neg4(_mm256_cvtpd_ps(_mm256_div_pd(new_log_p, step_pd))));
+                let wgt = _mm256_and_pd(wgt, moved);
+                for c in 0..3 {
+                    let px = |lane: usize| color[3 * i[o + lane] + c] as f64;
+                    let col = _mm256_set_pd(px(3), px(2), px(1), px(0));
+                    let acc = _mm256_loadu_pd(sum[c][q.clone()].as_ptr());
+                    let acc =
+                        _mm256_blendv_pd(acc, _mm256_add_pd(acc, _mm256_mul_pd(wgt, col)), moved);
+                    _mm256_storeu_pd(sum[c][q.clone()].as_mut_ptr(), acc);
+                }
+                let wsum = _mm256_loadu_pd(weight[q.clone()].as_ptr());
+                _mm256_storeu_pd(
+                    weight[q.clone()].as_mut_ptr(),
+                    _mm256_blendv_pd(wsum, _mm256_add_pd(wsum, wgt), moved),
+                );
+                _mm256_storeu_pd(
+                    log_p[q.clone()].as_mut_ptr(),
+                    _mm256_blendv_pd(old_log_p, new_log_p, moved),
+                );
             }
-            let wsum = _mm256_loadu_pd(weight.as_ptr());
-            _mm256_storeu_pd(
-                weight.as_mut_ptr(),
-                _mm256_blendv_pd(wsum, _mm256_add_pd(wsum, wgt), moved),
-            );
-            _mm256_storeu_pd(
-                log_p.as_mut_ptr(),
-                _mm256_blendv_pd(_mm256_loadu_pd(log_p.as_ptr()), new_log_p, moved),
-            );
             // Ended walks hand in their sums; their slot takes the next walk.
-            for s in 0..SLOTS {
+            for s in 0..slots {
                 if !live[s] || going[s] {
                     continue;
                 }

@@ -23,7 +23,17 @@ fn assert_finite(img: &Image, what: &str) {
     );
 }
 
-const PIPELINES: [&str; 5] = ["gsid", "sid", "gsid-outlier", "pyramid", "full"];
+/// Every named pipeline, presets included.
+const PIPELINES: [&str; 8] = [
+    "gsid",
+    "sid",
+    "gsid-outlier",
+    "pyramid",
+    "full",
+    "fast",
+    "balanced",
+    "quality",
+];
 
 #[test]
 fn tiny_and_huge_sigma_stay_finite() {
@@ -31,7 +41,7 @@ fn tiny_and_huge_sigma_stay_finite() {
         for sigma in ["1e-4", "1e4", "1e-6", "1e6"] {
             let mut b = synthetic_set(16, 12);
             let input = b.get("color").unwrap().clone();
-            let key = if p == "pyramid" || p == "full" {
+            let key = if p != "gsid" && p != "sid" && p != "gsid-outlier" {
                 "pyramid.gsid.sigma"
             } else {
                 "gsid.sigma"
@@ -201,4 +211,13 @@ fn renders_in_the_calibrated_range_are_not_rescaled() {
     }
     assert!(gsid::pipeline::exposure_scale(&Image::filled(4, 4, 3, 100.0)) < 0.01);
     assert_eq!(gsid::pipeline::exposure_scale(&Image::new(4, 4, 3)), 1.0);
+}
+
+#[test]
+fn hard_cases_cover_every_named_pipeline() {
+    let mut named: Vec<&str> = gsid::pipeline::BUILTIN.iter().map(|(n, _)| *n).collect();
+    let mut covered = PIPELINES.to_vec();
+    named.sort_unstable();
+    covered.sort_unstable();
+    assert_eq!(covered, named);
 }

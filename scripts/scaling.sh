@@ -1,0 +1,49 @@
+#!/usr/bin/env bash
+# Scaling and memory of `gsid denoise` on render sets tiled from a fixture (ALGORITHM.md §5 targets):
+#   - time per pixel at 1 MP and 4 MP (median of RUNS whole-process runs, all threads);
+#   - 1 thread against 2 threads at 1 MP;
+#   - peak resident memory (/usr/bin/time -v) at 4 MP, against the in-memory f32 size of the input buffers.
+# Usage: scripts/scaling.sh [PIPELINE] [RUNS] [FIXTURE_SET]   (defaults: balanced 5 fixtures/mitsuba-cornell/spp4)
+set -euo pipefail
+pipeline=${1:-balanced}
+runs=${2:-5}
+src=${3:-fixtures/mitsuba-cornell/spp4}
+cd "$(dirname "$0")/.."
+cargo build --release --quiet --bin gsid --example tile_set
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+target/release/examples/tile_set "$src" "$work/1mp" 8
+target/release/examples/tile_set "$src" "$work/4mp" 16
+
+median() { sort -n | awk '{a[NR]=$1} END {print a[int((NR+1)/2)]}'; }
+# Median wall seconds of RUNS runs of `gsid denoise SET` with extra arguments.
+timed() {
+  local set=$1; shift
+  for _ in $(seq "$runs"); do
+    local start end
+    start=$(date +%s.%N)
+    target/release/gsid denoise "$set" --pipeline "$pipeline" -o "$work/out.exr" --quiet "$@"
+    end=$(date +%s.%N)
+    echo "$end - $start" | bc -l
+  done | median
+}
+
+t1=$(timed "$work/1mp")
+t4=$(timed "$work/4mp")
+t1_one=$(timed "$work/1mp" --threads 1)
+t1_two=$(timed "$work/1mp" --threads 2)
+printf 'pipeline %s, %s, %d cores, median of %d runs\n' "$pipeline" "$src" "$(nproc)" "$runs"
+printf '  1 MP (1024x1024): %.3f s = %.1f ns/pixel\n' "$t1" "$(echo "$t1 * 1000000000 / 1048576" | bc -l)"
+printf '  4 MP (2048x2048): %.3f s = %.1f ns/pixel (%.2fx the 1 MP time per pixel)\n' \
+  "$t4" "$(echo "$t4 * 1000000000 / 4194304" | bc -l)" "$(echo "$t4 / 4 / $t1" | bc -l)"
+printf '  1 MP, 1 thread %.3f s, 2 threads %.3f s: %.2fx\n' "$t1_one" "$t1_two" "$(echo "$t1_one / $t1_two" | bc -l)"
+
+# Input buffers in memory: every channel of every buffer as f32.
+channels=$(for f in "$src"/*.exr; do
+  case $(basename "$f") in color.exr|albedo.exr|normal.exr|material.exr) echo 3 ;; *) echo 1 ;; esac
+done | paste -sd+ | bc)
+input_mb=$(echo "2048 * 2048 * $channels * 4 / 1048576" | bc -l)
+peak_kb=$(/usr/bin/time -v target/release/gsid denoise "$work/4mp" --pipeline "$pipeline" -o "$work/out.exr" --quiet 2>&1 \
+  | awk -F': ' '/Maximum resident set size/ {print $2}')
+printf '  peak memory at 4 MP: %.0f MB; input buffers (%d f32 channels): %.0f MB; ratio %.2f\n' \
+  "$(echo "$peak_kb / 1024" | bc -l)" "$channels" "$input_mb" "$(echo "$peak_kb / 1024 / $input_mb" | bc -l)"
