@@ -689,30 +689,11 @@ mod avx2 {
         _mm256_add_ps(x, _mm256_permute2f128_ps::<0x08>(low_total, low_total))
     }
 
-    /// `fastmath::exp_neg` on 4 lanes.
+    /// `fastmath::exp_neg` on 4 lanes (the low half of the 8-lane version).
     #[inline]
     #[target_feature(enable = "avx2")]
     fn exp_neg4(x: __m128) -> __m128 {
-        let set = _mm_set1_ps;
-        let (add, mul, sub) = (_mm_add_ps, _mm_mul_ps, _mm_sub_ps);
-        let valid = _mm_cmp_ps::<_CMP_GE_OQ>(x, set(EXP_MIN_ARG));
-        let x = _mm_min_ps(_mm_max_ps(x, set(EXP_MIN_ARG)), _mm_setzero_ps());
-        let ni = _mm_cvttps_epi32(sub(mul(x, set(LOG2E)), set(0.5)));
-        let n = _mm_cvtepi32_ps(ni);
-        let r = sub(sub(x, mul(n, set(LN2_HI))), mul(n, set(LN2_LO)));
-        let [c5, c4, c3, c2, c1, c0] = EXP_POLY;
-        let r2 = mul(r, r);
-        let r4 = mul(r2, r2);
-        let p = add(
-            mul(add(mul(set(c5), r), set(c4)), r4),
-            add(
-                mul(add(mul(set(c3), r), set(c2)), r2),
-                add(mul(set(c1), r), set(c0)),
-            ),
-        );
-        let p = add(add(mul(p, r2), r), set(1.0));
-        let scale = _mm_castsi128_ps(_mm_slli_epi32::<23>(_mm_add_epi32(ni, _mm_set1_epi32(127))));
-        _mm_and_ps(mul(p, scale), valid)
+        _mm256_castps256_ps128(exp_neg8(_mm256_set_m128(_mm_setzero_ps(), x)))
     }
 
     /// `fastmath::ln_normal` on 4 lanes.
