@@ -94,3 +94,23 @@ fn full_beats_single_scale_gsid_at_very_low_spp_and_holds_at_64() {
         );
     }
 }
+
+/// The presets keep the order they were chosen for (README "Presets") on every fixture at 4 spp:
+/// more time buys more SSIM, and every preset is far better than the input.
+#[test]
+fn presets_trade_time_for_quality_in_order() {
+    for f in FIXTURES {
+        let input = {
+            let dir = format!("fixtures/{f}/spp4");
+            let set = io::load_render_set(Path::new(&dir)).unwrap();
+            let reference = io::read_image(set.reference.as_ref().unwrap(), 3).unwrap();
+            metrics::ssim(set.buffers.get("color").unwrap(), &reference).unwrap()
+        };
+        let [fast, balanced, quality] =
+            ["fast", "balanced", "quality"].map(|p| scores_of(p, f, 4).ssim);
+        assert!(
+            quality >= balanced && balanced > fast && fast > input + 0.15,
+            "{f}: quality {quality:.4}, balanced {balanced:.4}, fast {fast:.4}, input {input:.4}"
+        );
+    }
+}
