@@ -455,23 +455,21 @@ pub fn denoise_with(
         .for_each_init(Scratch::default, |scratch, (band, rows)| {
             let y_begin = band * BAND_ROWS;
             let y_end = (y_begin + BAND_ROWS).min(h);
+            // The rows a walk from this band can reach.
+            let halo = radius.map(|r| (r, y_begin.saturating_sub(r)..(y_end + r).min(h)));
             let local;
-            let near = match (&global, radius) {
-                (Some(g), _) => g,
-                (None, r) => {
-                    let r = r.unwrap_or(0);
-                    local =
-                        Near::compute(input, inv, y_begin.saturating_sub(r)..(y_end + r).min(h));
+            let near = match &halo {
+                Some((_, rows)) => {
+                    local = Near::compute(input, inv, rows.clone());
                     &local
                 }
+                None => global
+                    .as_ref()
+                    .expect("built above when there is no window"),
             };
-            let planes = (kernel == Kernel::Avx2)
-                .then_some(radius)
-                .flatten()
-                .map(|r| {
-                    let rows = y_begin.saturating_sub(r)..(y_end + r).min(h);
-                    input.features.planes(rows, r + 8)
-                });
+            let planes = halo
+                .filter(|_| kernel == Kernel::Avx2)
+                .map(|(r, rows)| input.features.planes(rows, r + 8));
             let mut band_steps = 0u64;
             for y0 in y_begin..y_end {
                 let row = &mut rows[3 * w * (y0 - y_begin)..3 * w * (y0 - y_begin + 1)];
@@ -671,7 +669,7 @@ mod avx2 {
     use crate::walk::{WalkInput, WalkParams};
 
     /// Walks in lockstep per start pixel (a multiple of 4, the lanes of the f64 tail).
-    const SLOTS: usize = 16;
+    const SLOTS: usize = 8;
 
     /// `super::prefix8` on a register.
     #[inline]
