@@ -2,7 +2,7 @@
 //!
 //! Runs a pipeline, then variants of it: each top-level stage removed in turn (a pyramid is
 //! "removed" by running its sub-stages at full size only), each of the eight feature weights zeroed in
-//! every gsid stage, and plain SID; scores each against the reference.
+//! every stage that uses them (gsid, atrous), and plain SID; scores each against the reference.
 
 use std::time::Instant;
 
@@ -33,18 +33,19 @@ pub struct Variant {
     pub spec: PipelineSpec,
 }
 
-/// `--set` paths that reach every gsid stage of `spec` (top level, or inside a pyramid).
-fn gsid_paths(spec: &PipelineSpec) -> Vec<String> {
+/// `--set` paths that reach every stage with feature weights (gsid and atrous) of `spec` (top
+/// level, or inside a pyramid).
+fn feature_paths(spec: &PipelineSpec) -> Vec<String> {
     let mut paths = Vec::new();
     for s in &spec.stages {
         match s.kind.as_str() {
-            "gsid" => paths.push(s.id.clone()),
+            "gsid" | "atrous" => paths.push(s.id.clone()),
             "pyramid" => {
                 if let Some(toml::Value::Array(subs)) = s.params.get("stages") {
                     for sub in subs {
                         let kind = sub.get("kind").and_then(|k| k.as_str());
-                        if kind == Some("gsid") {
-                            let id = sub.get("id").and_then(|i| i.as_str()).unwrap_or("gsid");
+                        if let Some(kind @ ("gsid" | "atrous")) = kind {
+                            let id = sub.get("id").and_then(|i| i.as_str()).unwrap_or(kind);
                             paths.push(format!("{}.{id}", s.id));
                         }
                     }
@@ -81,7 +82,7 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
             out.push(Variant { name, spec: v });
         }
     }
-    let paths = gsid_paths(spec);
+    let paths = feature_paths(spec);
     if !paths.is_empty() {
         for name in Weights::NAMES {
             let mut v = spec.clone();

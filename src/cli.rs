@@ -130,6 +130,9 @@ pub struct DenoiseArgs {
     /// Also save an intermediate buffer, e.g. `--save-buffer outlier_mask=mask.exr` (repeatable).
     #[arg(long = "save-buffer", value_name = "NAME=FILE.exr")]
     pub save_buffers: Vec<String>,
+    /// Print each stage's time (and each pyramid level's) after the run.
+    #[arg(long)]
+    pub timings: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -230,12 +233,23 @@ fn denoise(args: &DenoiseArgs, quiet: bool) -> Result<()> {
                 ),
             )
         })?;
-        pending.write_exr(buf)?;
+        pending.write_exr(buf, io::Compression::Rle)?;
     }
-    pending.write_exr(&out)?;
+    pending.write_exr(&out, io::Compression::Rle)?;
     if !quiet {
         for line in &report.notes {
             eprintln!("gsid: {line}");
+        }
+        if args.timings {
+            for st in &report.stages {
+                eprintln!(
+                    "gsid:   {:<12} level {} {:>8.4} s {:>6.2} M walk steps",
+                    st.id,
+                    st.level,
+                    st.seconds,
+                    st.walk_steps as f64 / 1e6
+                );
+            }
         }
         let steps = report.walk_steps();
         eprintln!(

@@ -20,6 +20,7 @@ use serde::{Deserialize, Serialize};
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::image::Image;
+use crate::simd::Kernel;
 
 /// Floats per pixel record (padded to a cache line).
 pub const FEATURE_LANES: usize = 16;
@@ -275,24 +276,9 @@ impl Features {
     /// Rows `rows` of the records as one plane per lane (structure of arrays), each row padded with
     /// `pad` zero columns on both sides, so 8 horizontally adjacent pixels are one vector load.
     pub fn planes(&self, rows: std::ops::Range<usize>, pad: usize) -> FeaturePlanes {
-        let stride = self.width + 2 * pad;
-        let plane_len = rows.len() * stride;
-        let mut data = vec![0.0f32; USED_LANES * plane_len];
-        for (r, y) in rows.clone().enumerate() {
-            for x in 0..self.width {
-                let rec = &self.records[y * self.width + x];
-                for (lane, &v) in rec[..USED_LANES].iter().enumerate() {
-                    data[lane * plane_len + r * stride + pad + x] = v;
-                }
-            }
-        }
-        FeaturePlanes {
-            first_row: rows.start,
-            pad,
-            stride,
-            plane_len,
-            data,
-        }
+        FeaturePlanes::build(self.width, rows, pad, USED_LANES, |i, lane| {
+            self.records[i][lane]
+        })
     }
 
     #[inline]
@@ -317,6 +303,44 @@ pub struct FeaturePlanes {
 }
 
 impl FeaturePlanes {
+    /// Planes of `lanes` values per pixel of an image `width` wide, rows `rows`, rows padded with
+    /// `pad` zero columns on both sides; `value(i, lane)` reads pixel i (row-major index).
+    pub fn build(
+        width: usize,
+        rows: std::ops::Range<usize>,
+        pad: usize,
+        lanes: usize,
+        value: impl Fn(usize, usize) -> f32,
+    ) -> FeaturePlanes {
+        let stride = width + 2 * pad;
+        let plane_len = rows.len() * stride;
+        let mut data = vec![0.0f32; lanes * plane_len];
+        // Lane by lane, so every plane is written in order.
+        for lane in 0..lanes {
+            let plane = &mut data[lane * plane_len..(lane + 1) * plane_len];
+            for (r, y) in rows.clone().enumerate() {
+                let out = &mut plane[r * stride + pad..r * stride + pad + width];
+                for (x, v) in out.iter_mut().enumerate() {
+                    *v = value(y * width + x, lane);
+                }
+            }
+        }
+        FeaturePlanes {
+            first_row: rows.start,
+            pad,
+            stride,
+            plane_len,
+            data,
+        }
+    }
+
+    /// Lane `lane` of the `len` pixels starting at `offset` (see [`FeaturePlanes::offset`]).
+    #[inline]
+    pub fn lane(&self, lane: usize, offset: usize, len: usize) -> &[f32] {
+        let start = lane * self.plane_len + offset;
+        &self.data[start..start + len]
+    }
+
     /// Where pixel (x, y) sits in every plane; x may reach `pad` columns beyond either side.
     #[inline]
     pub fn offset(&self, x: isize, y: usize) -> usize {
@@ -328,6 +352,91 @@ impl FeaturePlanes {
     pub fn lane8(&self, lane: usize, offset: usize) -> &[f32] {
         let start = lane * self.plane_len + offset;
         &self.data[start..start + 8]
+    }
+}
+
+/// d for runs of pixel pairs: `out[x]` = d(pixel at plane offset `center + x`, pixel at
+/// `other + x`) of `planes`, for x < out.len(). Bit for bit equal to [`distance`] on the two records
+/// (the AVX2 kernel runs the same operations 8 pairs at a time).
+pub fn distance_row(
+    kernel: Kernel,
+    planes: &FeaturePlanes,
+    depth_weight: f32,
+    center: usize,
+    other: usize,
+    out: &mut [f32],
+) {
+    let done = match kernel.or_portable() {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: or_portable returns Avx2 only when the CPU has it.
+        Kernel::Avx2 => unsafe { avx2::distance_row(planes, depth_weight, center, other, out) },
+        _ => 0,
+    };
+    let n = out.len();
+    let mut a = [0.0f32; FEATURE_LANES];
+    let mut b = [0.0f32; FEATURE_LANES];
+    for x in done..n {
+        for lane in 0..USED_LANES {
+            a[lane] = planes.lane(lane, center, n)[x];
+            b[lane] = planes.lane(lane, other, n)[x];
+        }
+        out[x] = distance(&a, &b, depth_weight);
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use std::arch::x86_64::*;
+
+    use super::{FeaturePlanes, DEPTH_EPS};
+
+    /// `super::distance_row` for the whole groups of 8 pairs; returns how many pairs it did.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[target_feature(enable = "avx2")]
+    pub unsafe fn distance_row(
+        planes: &FeaturePlanes,
+        depth_weight: f32,
+        center: usize,
+        other: usize,
+        out: &mut [f32],
+    ) -> usize {
+        let (add, mul, sub) = (_mm256_add_ps, _mm256_mul_ps, _mm256_sub_ps);
+        let abs_mask = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fff_ffff));
+        let dw = _mm256_set1_ps(depth_weight);
+        let full = out.len() / 8 * 8;
+        let mut x = 0;
+        while x < full {
+            // SAFETY: `lane` checks that 8 floats exist; unaligned loads.
+            let ld = |lane: usize, at: usize| unsafe {
+                _mm256_loadu_ps(planes.lane(lane, at + x, 8).as_ptr())
+            };
+            let diff = |lane: usize| sub(ld(lane, center), ld(lane, other));
+            let sq = |lane: usize| {
+                let d = diff(lane);
+                mul(d, d)
+            };
+            let abs = |lane: usize| _mm256_and_ps(diff(lane), abs_mask);
+            let color = _mm256_sqrt_ps(add(add(sq(0), sq(1)), sq(2)));
+            let albedo = _mm256_sqrt_ps(add(add(sq(3), sq(4)), sq(5)));
+            let normal = add(add(sq(6), sq(7)), sq(8));
+            let material = add(add(add(abs(9), abs(10)), abs(11)), abs(12));
+            let depth = if depth_weight > 0.0 {
+                let denom = _mm256_max_ps(
+                    _mm256_max_ps(ld(13, center), ld(13, other)),
+                    _mm256_set1_ps(DEPTH_EPS),
+                );
+                _mm256_div_ps(mul(dw, abs(13)), denom)
+            } else {
+                _mm256_setzero_ps()
+            };
+            let d = add(add(add(add(color, albedo), normal), material), depth);
+            // SAFETY: x + 8 <= out.len(); unaligned store.
+            unsafe { _mm256_storeu_ps(out[x..x + 8].as_mut_ptr(), d) };
+            x += 8;
+        }
+        full
     }
 }
 

@@ -3,6 +3,7 @@
 //! See README.md for the module map. The maths is in ALGORITHM.md of the project's shared notes.
 
 pub mod ablate;
+pub mod atrous;
 pub mod buffers;
 pub mod cli;
 pub mod error;
@@ -17,6 +18,7 @@ pub mod progress;
 pub mod pyramid;
 pub mod render;
 pub mod sanitize;
+pub mod simd;
 pub mod stages;
 pub mod sweep;
 pub mod walk;

@@ -27,6 +27,7 @@ use rayon::prelude::*;
 use crate::fastmath::{exp_neg, ln_normal};
 use crate::features::{FeaturePlanes, Features};
 use crate::image::Image;
+pub use crate::simd::Kernel;
 
 /// The 8-neighbourhood, in the lane order used everywhere (row above, same row, row below).
 pub const OFFSETS: [(isize, isize); 8] = [
@@ -378,36 +379,6 @@ impl Near {
 /// in cache and never exist for the whole image at once.
 const BAND_ROWS: usize = 16;
 
-/// Which implementation of the windowed walk step runs. All give the same bits.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Kernel {
-    /// Portable Rust, lane by lane.
-    Scalar,
-    /// One step's 8 neighbours in one 256-bit register (x86-64 with AVX2).
-    Avx2,
-}
-
-impl Kernel {
-    /// The fastest kernel this CPU runs, detected at run time so one binary serves old CPUs too.
-    pub fn detect() -> Kernel {
-        if Kernel::Avx2.is_available() {
-            Kernel::Avx2
-        } else {
-            Kernel::Scalar
-        }
-    }
-
-    pub fn is_available(self) -> bool {
-        match self {
-            Kernel::Scalar => true,
-            #[cfg(target_arch = "x86_64")]
-            Kernel::Avx2 => std::arch::is_x86_feature_detected!("avx2"),
-            #[cfg(not(target_arch = "x86_64"))]
-            Kernel::Avx2 => false,
-        }
-    }
-}
-
 /// The fast version with the fastest kernel this CPU has. See [`denoise_with`].
 pub fn denoise(
     input: &WalkInput,
@@ -664,7 +635,8 @@ mod avx2 {
     use super::{
         choose_log, pixel_key, uniform, walk_key, Accum, Near, Window, LINEAR_MIN, OFFSETS,
     };
-    use crate::fastmath::{EXP_MIN_ARG, EXP_POLY, LN2_HI, LN2_LO, LN_POLY, LOG2E};
+    use crate::fastmath::avx2::exp_neg8;
+    use crate::fastmath::{LN2_HI, LN2_LO, LN_POLY};
     use crate::features::{FeaturePlanes, DEPTH_EPS};
     use crate::walk::{WalkInput, WalkParams};
 
@@ -729,35 +701,6 @@ mod avx2 {
             mul(set(0.5), z),
         );
         add(add(f, y), mul(ef, set(LN2_HI)))
-    }
-
-    /// `fastmath::exp_neg` on 8 lanes.
-    #[inline]
-    #[target_feature(enable = "avx2")]
-    fn exp_neg8(x: __m256) -> __m256 {
-        let set = _mm256_set1_ps;
-        let (add, mul, sub) = (_mm256_add_ps, _mm256_mul_ps, _mm256_sub_ps);
-        let valid = _mm256_cmp_ps::<_CMP_GE_OQ>(x, set(EXP_MIN_ARG));
-        let x = _mm256_min_ps(_mm256_max_ps(x, set(EXP_MIN_ARG)), _mm256_setzero_ps());
-        let ni = _mm256_cvttps_epi32(sub(mul(x, set(LOG2E)), set(0.5)));
-        let n = _mm256_cvtepi32_ps(ni);
-        let r = sub(sub(x, mul(n, set(LN2_HI))), mul(n, set(LN2_LO)));
-        let [c5, c4, c3, c2, c1, c0] = EXP_POLY;
-        let r2 = mul(r, r);
-        let r4 = mul(r2, r2);
-        let p = add(
-            mul(add(mul(set(c5), r), set(c4)), r4),
-            add(
-                mul(add(mul(set(c3), r), set(c2)), r2),
-                add(mul(set(c1), r), set(c0)),
-            ),
-        );
-        let p = add(add(mul(p, r2), r), set(1.0));
-        let scale = _mm256_castsi256_ps(_mm256_slli_epi32::<23>(_mm256_add_epi32(
-            ni,
-            _mm256_set1_epi32(127),
-        )));
-        _mm256_and_ps(mul(p, scale), valid)
     }
 
     /// `features::distance(center, ·)` against the 8 pixels (x .. x+8, y) of `planes`.

@@ -4,6 +4,7 @@
 //! stage table are `kind`, `id`, `input` and `output`; everything else is the kind's parameters,
 //! parsed with `deny_unknown_fields` so a misspelled key is an error that names it.
 
+pub mod atrous;
 pub mod gsid;
 pub mod outlier;
 pub mod pyramid;
@@ -98,11 +99,12 @@ pub trait Stage: Send + Sync {
 }
 
 /// The stage kinds gsid knows, for error messages.
-pub const KINDS: &[&str] = &["gsid", "outlier", "pyramid"];
+pub const KINDS: &[&str] = &["atrous", "gsid", "outlier", "pyramid"];
 
 /// Builds a stage of `kind` from its parameter table.
 pub fn build(kind: &str, id: &str, io: StageIo, params: toml::Table) -> Result<Box<dyn Stage>> {
     match kind {
+        "atrous" => Ok(Box::new(atrous::AtrousStage::from_table(id, io, params)?)),
         "gsid" => Ok(Box::new(gsid::GsidStage::from_table(id, io, params)?)),
         "outlier" => Ok(Box::new(outlier::OutlierStage::from_table(id, io, params)?)),
         "pyramid" => Ok(Box::new(pyramid::PyramidStage::from_table(id, io, params)?)),

@@ -1,0 +1,202 @@
+//! Edge-avoiding à-trous filtering with GSID's pixel difference (after Dammertz et al. 2010,
+//! "Edge-avoiding À-Trous wavelet transform for fast global illumination filtering").
+//!
+//! Why: a GSID result averages each pixel over the few dozen pixels its walks reach, so flat
+//! surfaces keep a fine speckle and faint blotches at the scale of a walk. One pass of this filter
+//! averages every pixel with 5×5 taps 2^k pixels apart (B3-spline weights), each tap also weighted
+//! by exp(−d(i, j)²/(2σ²)) with d the GSID difference of ALGORITHM.md §2. The colour feature is
+//! taken from the image being filtered, so after GSID it is nearly noise-free and σ can be small:
+//! the averaging stops at every edge of colour, albedo, normal, material, shadow or depth.
+//! Two passes reach 13×13 pixels for 50 taps.
+//!
+//! Deterministic (no random numbers); every pixel's sums are formed in f64 in one fixed order, so
+//! the result is the same bits on any thread count and with either kernel.
+
+use rayon::prelude::*;
+
+use crate::fastmath::exp_neg_row;
+use crate::features::{distance_row, FeaturePlanes, Features};
+use crate::image::Image;
+use crate::simd::Kernel;
+
+/// The B3-spline taps of one axis (sum 1).
+pub const TAPS: [f32; 5] = [1.0 / 16.0, 0.25, 0.375, 0.25, 1.0 / 16.0];
+
+/// Output rows per parallel task; each task copies its rows plus a halo into planes.
+const BAND_ROWS: usize = 32;
+
+/// One filter pass with taps `step` pixels apart and scale `sigma` of the difference.
+///
+/// `mask` (true = avoid) pixels give no weight to any pixel, themselves included; a pixel whose
+/// taps all have weight 0 keeps its input value.
+pub fn pass(
+    color: &Image,
+    features: &Features,
+    mask: Option<&[bool]>,
+    step: usize,
+    sigma: f32,
+) -> Image {
+    pass_with(Kernel::detect(), color, features, mask, step, sigma)
+}
+
+/// [`pass`] with a chosen row kernel (all give the same bits; an unavailable one falls back to
+/// the portable one).
+pub fn pass_with(
+    kernel: Kernel,
+    color: &Image,
+    features: &Features,
+    mask: Option<&[bool]>,
+    step: usize,
+    sigma: f32,
+) -> Image {
+    let kernel = kernel.or_portable();
+    let (w, h) = color.dims();
+    let mut out = Image::new(w, h, 3);
+    if w == 0 || h == 0 {
+        return out;
+    }
+    let reach = 2 * step;
+    let inv = 1.0 / (2.0 * sigma * sigma);
+    let depth_weight = features.depth_weight();
+    out.data_mut()
+        .par_chunks_mut(3 * w * BAND_ROWS)
+        .enumerate()
+        .for_each(|(band, rows_out)| {
+            let y_begin = band * BAND_ROWS;
+            let y_end = (y_begin + BAND_ROWS).min(h);
+            let rows = y_begin.saturating_sub(reach)..(y_end + reach).min(h);
+            let feats = features.planes(rows.clone(), reach);
+            // Colour (3 lanes) and the keep weight (lane 3: 0 on masked pixels, else 1).
+            let cols = FeaturePlanes::build(w, rows, reach, 4, |i, lane| {
+                if lane < 3 {
+                    color.data()[3 * i + lane]
+                } else if mask.is_some_and(|m| m[i]) {
+                    0.0
+                } else {
+                    1.0
+                }
+            });
+            let mut acc = Acc::new(w);
+            let mut scratch = vec![0.0f32; w];
+            for y in y_begin..y_end {
+                acc.clear();
+                for (a, &ha) in TAPS.iter().enumerate() {
+                    let ny = y as isize + (a as isize - 2) * step as isize;
+                    if ny < 0 || ny >= h as isize {
+                        continue;
+                    }
+                    for (b, &hb) in TAPS.iter().enumerate() {
+                        let dx = (b as isize - 2) * step as isize;
+                        // Columns whose tap lies inside the image.
+                        let lo = (-dx).max(0) as usize;
+                        let hi = (w as isize - dx).clamp(0, w as isize) as usize;
+                        if lo >= hi {
+                            continue;
+                        }
+                        let center = feats.offset(lo as isize, y);
+                        let other = feats.offset(lo as isize + dx, ny as usize);
+                        let e = &mut scratch[..hi - lo];
+                        distance_row(kernel, &feats, depth_weight, center, other, e);
+                        let acc = acc.range(lo, hi);
+                        add_tap(kernel, &cols, center, other, ha * hb, inv, e, acc);
+                    }
+                }
+                let row = &mut rows_out[3 * w * (y - y_begin)..3 * w * (y - y_begin + 1)];
+                acc.write(&color.data()[3 * w * y..3 * w * (y + 1)], row);
+            }
+        });
+    out
+}
+
+/// f64 sums of one output row: weighted colour and weight.
+struct Acc {
+    r: Vec<f64>,
+    g: Vec<f64>,
+    b: Vec<f64>,
+    weight: Vec<f64>,
+}
+
+/// The same sums over columns lo..hi.
+struct AccRange<'a> {
+    r: &'a mut [f64],
+    g: &'a mut [f64],
+    b: &'a mut [f64],
+    weight: &'a mut [f64],
+}
+
+impl Acc {
+    fn new(w: usize) -> Acc {
+        Acc {
+            r: vec![0.0; w],
+            g: vec![0.0; w],
+            b: vec![0.0; w],
+            weight: vec![0.0; w],
+        }
+    }
+
+    fn clear(&mut self) {
+        for v in [&mut self.r, &mut self.g, &mut self.b, &mut self.weight] {
+            v.fill(0.0);
+        }
+    }
+
+    fn range(&mut self, lo: usize, hi: usize) -> AccRange<'_> {
+        AccRange {
+            r: &mut self.r[lo..hi],
+            g: &mut self.g[lo..hi],
+            b: &mut self.b[lo..hi],
+            weight: &mut self.weight[lo..hi],
+        }
+    }
+
+    /// Weighted means into `out`; pixels without weight keep `input`.
+    fn write(&self, input: &[f32], out: &mut [f32]) {
+        for x in 0..self.weight.len() {
+            let wsum = self.weight[x];
+            let px = &mut out[3 * x..3 * x + 3];
+            if wsum > 0.0 && wsum.is_finite() {
+                px[0] = (self.r[x] / wsum) as f32;
+                px[1] = (self.g[x] / wsum) as f32;
+                px[2] = (self.b[x] / wsum) as f32;
+            } else {
+                px.copy_from_slice(&input[3 * x..3 * x + 3]);
+            }
+        }
+    }
+}
+
+/// Adds one tap's weighted colour to the sums of a run of a row: the tap's B3 weight `tap` times
+/// exp(−d²/(2σ²)) times both pixels' keep weights, given the run's differences in `e` (turned
+/// into the exponentials in place).
+#[allow(clippy::too_many_arguments)]
+fn add_tap(
+    kernel: Kernel,
+    cols: &FeaturePlanes,
+    center: usize,
+    other: usize,
+    tap: f32,
+    inv: f32,
+    e: &mut [f32],
+    acc: AccRange,
+) {
+    let n = e.len();
+    for v in e.iter_mut() {
+        *v = -(*v * *v) * inv;
+    }
+    exp_neg_row(kernel, e);
+    let (red, green, blue) = (
+        cols.lane(0, other, n),
+        cols.lane(1, other, n),
+        cols.lane(2, other, n),
+    );
+    let (keep, keep_center) = (cols.lane(3, other, n), cols.lane(3, center, n));
+    let AccRange { r, g, b, weight } = acc;
+    let (r, g, b, weight) = (&mut r[..n], &mut g[..n], &mut b[..n], &mut weight[..n]);
+    for x in 0..n {
+        let wgt = (tap * e[x] * keep[x] * keep_center[x]) as f64;
+        r[x] += wgt * red[x] as f64;
+        g[x] += wgt * green[x] as f64;
+        b[x] += wgt * blue[x] as f64;
+        weight[x] += wgt;
+    }
+}

@@ -1,0 +1,147 @@
+//! The `atrous` stage: edge-avoiding à-trous passes with GSID's difference (see `crate::atrous`),
+//! to take the residual speckle out of a GSID result.
+
+use serde::{Deserialize, Serialize};
+
+use super::{parse_params, Context, Stage, StageIo};
+use crate::atrous;
+use crate::buffers::Buffers;
+use crate::error::{Error, Result};
+use crate::features::{Features, Tone, Weights};
+
+/// Parameters of the `atrous` stage (keys of its table in a pipeline file).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AtrousParams {
+    /// Passes; pass k spaces its 5×5 taps 2^k pixels apart (2 passes reach 13×13). More passes
+    /// smooth wider; each costs the same time.
+    pub iterations: u32,
+    /// Scale of the difference function: larger averages across bigger differences. Smaller than
+    /// GSID's because the colour it compares has already been denoised.
+    pub sigma: f32,
+    /// The eight feature weights W1..W8.
+    pub weights: Weights,
+    /// Tone curve for the colour feature F1.
+    pub tone: Tone,
+    /// Multiplier applied to colour before the tone curve.
+    pub exposure: f32,
+    /// Optional one-channel buffer of pixels that get no weight (> 0.5 = masked).
+    pub mask: Option<String>,
+}
+
+impl Default for AtrousParams {
+    fn default() -> Self {
+        AtrousParams {
+            iterations: 2,
+            sigma: 0.2,
+            weights: Weights::default(),
+            tone: Tone::Reinhard,
+            exposure: 1.0,
+            mask: None,
+        }
+    }
+}
+
+/// Most passes accepted: pass 12 would space taps 4096 pixels apart.
+pub const MAX_ITERATIONS: u32 = 12;
+
+fn range_err(key: &str, value: impl std::fmt::Display, range: &str) -> Error {
+    Error::config(key, format!("is {value}, allowed range is {range}"))
+}
+
+impl AtrousParams {
+    /// Checks every key against its allowed range; the error names the key.
+    pub fn validate(&self) -> Result<()> {
+        if !(1..=MAX_ITERATIONS).contains(&self.iterations) {
+            return Err(range_err(
+                "iterations",
+                self.iterations,
+                &format!("1 to {MAX_ITERATIONS}"),
+            ));
+        }
+        if !(1e-6..=1e6).contains(&self.sigma) {
+            return Err(range_err("sigma", self.sigma, "1e-6 to 1e6"));
+        }
+        if !(self.exposure > 0.0 && self.exposure <= 1e6) {
+            return Err(range_err("exposure", self.exposure, "above 0, at most 1e6"));
+        }
+        self.weights.validate()
+    }
+}
+
+pub struct AtrousStage {
+    id: String,
+    io: StageIo,
+    pub params: AtrousParams,
+}
+
+impl AtrousStage {
+    pub fn from_table(id: &str, io: StageIo, table: toml::Table) -> Result<Self> {
+        let params: AtrousParams = parse_params(id, table)?;
+        params.validate().map_err(|e| e.in_context(id))?;
+        Ok(AtrousStage {
+            id: id.to_string(),
+            io,
+            params,
+        })
+    }
+}
+
+impl Stage for AtrousStage {
+    fn id(&self) -> &str {
+        &self.id
+    }
+
+    fn requires(&self) -> Vec<String> {
+        vec![self.io.input.clone()]
+    }
+
+    fn writes(&self) -> Vec<String> {
+        vec![self.io.output.clone()]
+    }
+
+    fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
+        let p = &self.params;
+        let input = &self.io.input;
+        let mut color = buffers.require(input)?.clone();
+        if color.channels() != 3 {
+            return Err(Error::buffer(
+                input,
+                format!("has {} channels, expected 3", color.channels()),
+            ));
+        }
+        let mask: Option<Vec<bool>> = match &p.mask {
+            Some(name) => match buffers.get_channels(name, 1)? {
+                Some(m) if m.dims() != color.dims() => {
+                    return Err(Error::buffer(
+                        name,
+                        "does not match the colour buffer's size",
+                    ))
+                }
+                Some(m) => Some(m.data().iter().map(|&v| v > 0.5).collect()),
+                None => {
+                    ctx.note(format!(
+                        "{}: mask buffer `{name}` not present; no pixels masked",
+                        self.id
+                    ));
+                    None
+                }
+            },
+            None => None,
+        };
+        for k in 0..p.iterations {
+            // The colour feature is re-read from each pass's input: it gets cleaner every pass.
+            let (features, off) = Features::build(&color, buffers, &p.weights, p.tone, p.exposure)?;
+            if k == 0 && !off.is_empty() {
+                ctx.note(format!(
+                    "{}: features off (buffer missing): {}",
+                    self.id,
+                    off.join(", ")
+                ));
+            }
+            color = atrous::pass(&color, &features, mask.as_deref(), 1 << k, p.sigma);
+        }
+        buffers.insert(self.io.output.clone(), color)?;
+        Ok(0)
+    }
+}
