@@ -346,13 +346,6 @@ impl FeaturePlanes {
     pub fn offset(&self, x: isize, y: usize) -> usize {
         (y - self.first_row) * self.stride + (x + self.pad as isize) as usize
     }
-
-    /// Lane `lane` of the 8 pixels starting at `offset`.
-    #[inline]
-    pub fn lane8(&self, lane: usize, offset: usize) -> &[f32] {
-        let start = lane * self.plane_len + offset;
-        &self.data[start..start + 8]
-    }
 }
 
 /// d for runs of pixel pairs: `out[x]` = d(pixel at plane offset `center + x`, pixel at

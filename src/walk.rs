@@ -24,8 +24,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use rayon::prelude::*;
 
-use crate::fastmath::{exp_neg, ln_normal};
-use crate::features::{FeaturePlanes, Features};
+use crate::fastmath::{exp_neg, exp_neg_row, ln_normal};
+use crate::features::{distance_row, Features};
 use crate::image::Image;
 pub use crate::simd::Kernel;
 
@@ -326,6 +326,7 @@ pub fn denoise_reference(input: &WalkInput, params: &WalkParams) -> (Image, Walk
 /// The x0-independent terms of a band of rows: for each pixel i and lane k, −d(i, j)²/(2σ²) and
 /// its exp (−∞ and 0 outside the image or on masked pixels). One pixel's 8 terms are one 32-byte
 /// block, so a step loads them with one vector load.
+#[derive(Default)]
 struct Near {
     /// Index of the first pixel of the band.
     base: usize,
@@ -334,33 +335,55 @@ struct Near {
 }
 
 impl Near {
-    fn compute(input: &WalkInput, inv: f32, rows: Range<usize>) -> Near {
+    /// The terms of rows `rows`, into `self` (its buffers are reused from band to band).
+    ///
+    /// Each pair of neighbours is computed once, a row at a time with [`distance_row`]: the pair
+    /// (p, p + o) for the four offsets o that point forward fills lane o of p and lane −o of p + o.
+    fn compute(&mut self, kernel: Kernel, input: &WalkInput, inv: f32, rows: Range<usize>) {
         let (w, h) = input.color.dims();
         let blocked = |j: usize| input.mask.is_some_and(|m| m[j]);
         let n = rows.len() * w;
-        let mut log = vec![[f32::NEG_INFINITY; 8]; n];
-        let mut lin = vec![[0.0f32; 8]; n];
-        for y in rows.clone() {
-            for x in 0..w {
-                let i = y * w + x;
-                let slot = (y - rows.start) * w + x;
-                for k in 0..8 {
-                    if let Some((nx, ny)) = neighbour(x, y, k, w, h) {
-                        let j = ny * w + nx;
-                        if !blocked(j) {
-                            let d = input.features.distance(i, j);
-                            let t = -(d * d) * inv;
-                            log[slot][k] = t;
-                            lin[slot][k] = exp_neg(t);
-                        }
+        self.base = rows.start * w;
+        self.log.clear();
+        self.log.resize(n, [f32::NEG_INFINITY; 8]);
+        self.lin.clear();
+        self.lin.resize(n, [0.0f32; 8]);
+        // A pixel's backward lanes come from pairs that start one row above.
+        let first = rows.start.saturating_sub(1);
+        let planes = input.features.planes(first..(rows.end + 1).min(h), 0);
+        let depth_weight = input.features.depth_weight();
+        let (mut t, mut e) = (vec![0.0f32; w], vec![0.0f32; w]);
+        // (forward lane, its reverse lane) of OFFSETS.
+        for (fwd, back) in [(4, 3), (5, 2), (6, 1), (7, 0)] {
+            let (dx, dy) = OFFSETS[fwd];
+            let lo = (-dx).max(0) as usize;
+            let hi = (w as isize - dx).clamp(0, w as isize) as usize;
+            for y in first..rows.end {
+                let ny = y + dy as usize;
+                if ny >= h || ny >= rows.end || lo >= hi {
+                    continue;
+                }
+                let (t, e) = (&mut t[lo..hi], &mut e[lo..hi]);
+                let center = planes.offset(lo as isize, y);
+                let other = planes.offset(lo as isize + dx, ny);
+                distance_row(kernel, &planes, depth_weight, center, other, t);
+                for v in t.iter_mut() {
+                    *v = -(*v * *v) * inv;
+                }
+                e.copy_from_slice(t);
+                exp_neg_row(kernel, e);
+                for (k, x) in (lo..hi).enumerate() {
+                    let (p, q) = (y * w + x, ny * w + (x as isize + dx) as usize);
+                    if y >= rows.start && !blocked(q) {
+                        self.log[p - self.base][fwd] = t[k];
+                        self.lin[p - self.base][fwd] = e[k];
+                    }
+                    if ny >= rows.start && !blocked(p) {
+                        self.log[q - self.base][back] = t[k];
+                        self.lin[q - self.base][back] = e[k];
                     }
                 }
             }
-        }
-        Near {
-            base: rows.start * w,
-            log,
-            lin,
         }
     }
 
@@ -388,12 +411,26 @@ pub fn denoise(
     denoise_with(Kernel::detect(), input, params, on_row)
 }
 
-/// Per-thread scratch space, reused across start pixels.
+thread_local! {
+    /// Each worker thread's scratch space. Thread-local rather than rayon's `for_each_init`, which
+    /// makes a fresh one per work split: the band tables would be allocated (and page-faulted in)
+    /// again for every band.
+    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::new(Scratch::default());
+}
+
+/// Per-thread scratch space, reused across start pixels, bands and runs.
 #[derive(Default)]
 struct Scratch {
+    /// Window grids of a batch of start pixels, one after the other.
     grid: Vec<f32>,
     egrid: Vec<f32>,
+    /// Per batch pixel: (grid cell of its centre, pixel index).
+    starts: Vec<(usize, usize)>,
+    /// Per walk sums of a batch, and per pixel results.
     parts: Vec<Accum>,
+    accs: Vec<Accum>,
+    near: Near,
+    pairs: Pairs,
 }
 
 /// The fast version: parallel over bands of rows, neighbour terms precomputed per band, window
@@ -419,76 +456,203 @@ pub fn denoise_with(
     // The window is clipped to what a walk can reach: a larger one only costs time.
     let radius = params.window.map(|r| r.min(params.max_steps) as usize);
     // Unbounded walks may reach any row, so they share one whole-image table.
-    let global = radius.is_none().then(|| Near::compute(input, inv, 0..h));
+    let global = radius.is_none().then(|| {
+        let mut near = Near::default();
+        near.compute(kernel, input, inv, 0..h);
+        near
+    });
     out.data_mut()
         .par_chunks_mut(3 * w.max(1) * BAND_ROWS)
         .enumerate()
-        .for_each_init(Scratch::default, |scratch, (band, rows)| {
-            let y_begin = band * BAND_ROWS;
-            let y_end = (y_begin + BAND_ROWS).min(h);
-            // The rows a walk from this band can reach.
-            let halo = radius.map(|r| (r, y_begin.saturating_sub(r)..(y_end + r).min(h)));
-            let local;
-            let near = match &halo {
-                Some((_, rows)) => {
-                    local = Near::compute(input, inv, rows.clone());
-                    &local
-                }
-                None => global
-                    .as_ref()
-                    .expect("built above when there is no window"),
-            };
-            let planes = halo
-                .filter(|_| kernel == Kernel::Avx2)
-                .map(|(r, rows)| input.features.planes(rows, r + 8));
-            let mut band_steps = 0u64;
-            for y0 in y_begin..y_end {
-                let row = &mut rows[3 * w * (y0 - y_begin)..3 * w * (y0 - y_begin + 1)];
-                for x0 in 0..w {
-                    let i0 = y0 * w + x0;
-                    let (acc, n) = match radius {
-                        Some(r) => {
-                            let win = Window::fill(
-                                input,
-                                inv,
-                                &mut scratch.grid,
-                                &mut scratch.egrid,
-                                planes.as_ref(),
-                                r,
-                                x0,
-                                y0,
-                            );
-                            match kernel {
-                                Kernel::Scalar => walk_windowed(input, params, near, &win),
-                                #[cfg(target_arch = "x86_64")]
-                                // SAFETY: `kernel` is Avx2 only if the CPU reported AVX2 above.
-                                Kernel::Avx2 => unsafe {
-                                    avx2::walk_windowed(
+        .for_each(|(band, rows)| {
+            SCRATCH.with_borrow_mut(|scratch| {
+                let y_begin = band * BAND_ROWS;
+                let y_end = (y_begin + BAND_ROWS).min(h);
+                // The rows a walk from this band can reach.
+                let halo = radius.map(|r| y_begin.saturating_sub(r)..(y_end + r).min(h));
+                let near = match &halo {
+                    Some(rows) => {
+                        scratch.near.compute(kernel, input, inv, rows.clone());
+                        &scratch.near
+                    }
+                    None => global
+                        .as_ref()
+                        .expect("built above when there is no window"),
+                };
+                let pairs = match radius {
+                    Some(r) if scratch.pairs.compute(kernel, input, inv, r, y_begin..y_end) => {
+                        Some(&scratch.pairs)
+                    }
+                    _ => None,
+                };
+                let mut band_steps = 0u64;
+                // Start pixels whose walks run in lockstep: enough to fill the AVX2 kernel's slots.
+                let batch = match kernel {
+                    #[cfg(target_arch = "x86_64")]
+                    Kernel::Avx2 if radius.is_some() => avx2::batch(params.walks),
+                    _ => 1,
+                };
+                let cells = radius.map_or(0, |r| (2 * r + 3) * (2 * r + 3));
+                scratch.grid.resize(batch * cells, 0.0);
+                scratch.egrid.resize(batch * cells, 0.0);
+                scratch.accs.resize(batch, Accum::default());
+                for y0 in y_begin..y_end {
+                    let row = &mut rows[3 * w * (y0 - y_begin)..3 * w * (y0 - y_begin + 1)];
+                    for x_begin in (0..w).step_by(batch) {
+                        let xs = x_begin..(x_begin + batch).min(w);
+                        let n = match radius {
+                            Some(r) => {
+                                scratch.starts.clear();
+                                for (b, x0) in xs.clone().enumerate() {
+                                    let cell = b * cells..(b + 1) * cells;
+                                    let win = Window::fill(
                                         input,
-                                        params,
-                                        near,
-                                        &win,
-                                        &mut scratch.parts,
-                                    )
-                                },
-                                #[cfg(not(target_arch = "x86_64"))]
-                                Kernel::Avx2 => walk_windowed(input, params, near, &win),
+                                        inv,
+                                        &mut scratch.grid[cell.clone()],
+                                        &mut scratch.egrid[cell],
+                                        pairs,
+                                        r,
+                                        x0,
+                                        y0,
+                                    );
+                                    scratch.starts.push((b * cells + win.center(), win.i0));
+                                }
+                                match kernel {
+                                    #[cfg(target_arch = "x86_64")]
+                                    // SAFETY: `kernel` is Avx2 only if the CPU reported AVX2 above.
+                                    Kernel::Avx2 => unsafe {
+                                        avx2::walk_batch(
+                                            input,
+                                            params,
+                                            near,
+                                            avx2::Batch {
+                                                grid: &scratch.grid,
+                                                egrid: &scratch.egrid,
+                                                side: 2 * r + 3,
+                                                starts: &scratch.starts,
+                                            },
+                                            &mut scratch.parts,
+                                            &mut scratch.accs,
+                                        )
+                                    },
+                                    _ => {
+                                        let win = Window {
+                                            grid: &scratch.grid[..cells],
+                                            egrid: &scratch.egrid[..cells],
+                                            side: 2 * r + 3,
+                                            i0: y0 * w + xs.start,
+                                        };
+                                        let (acc, n) = walk_windowed(input, params, near, &win);
+                                        scratch.accs[0] = acc;
+                                        n
+                                    }
+                                }
                             }
+                            None => {
+                                let (acc, n) =
+                                    walk_unbounded(input, params, near, inv, xs.start, y0);
+                                scratch.accs[0] = acc;
+                                n
+                            }
+                        };
+                        band_steps += n;
+                        for (b, x0) in xs.enumerate() {
+                            let i0 = y0 * w + x0;
+                            scratch.accs[b]
+                                .write(input.color.pixel(i0), &mut row[3 * x0..3 * x0 + 3]);
                         }
-                        None => walk_unbounded(input, params, near, inv, x0, y0),
-                    };
-                    band_steps += n;
-                    acc.write(input.color.pixel(i0), &mut row[3 * x0..3 * x0 + 3]);
+                    }
+                    on_row();
                 }
-                on_row();
-            }
-            steps.fetch_add(band_steps, Ordering::Relaxed);
+                steps.fetch_add(band_steps, Ordering::Relaxed);
+            })
         });
     let stats = WalkStats {
         walks: (w * h) as u64 * params.walks as u64,
         steps: steps.into_inner(),
     };
     (out, stats)
+}
+
+/// The x0 terms of a band's start pixels, each pixel pair computed once: for every offset o of
+/// the half window (dy > 0, or dy = 0 and dx > 0) and every pixel p from `first_row` to the band's
+/// end, −d(p, p + o)²/(2σ²) and its exp (−∞ and 0 where p + o leaves the image). x0's term for
+/// x0 + o is entry (o, x0), and for x0 − o entry (o, x0 − o), as d is symmetric bit for bit. A row
+/// of one offset is 8 pairs per vector, against 9-wide window rows filled per start pixel before.
+#[derive(Default)]
+struct Pairs {
+    offsets: Vec<(isize, isize)>,
+    first_row: usize,
+    rows: usize,
+    width: usize,
+    log: Vec<f32>,
+    lin: Vec<f32>,
+}
+
+/// Largest pair table (floats per array) a band builds; larger windows fill cell by cell.
+const PAIRS_MAX_FLOATS: usize = 1 << 22;
+
+impl Pairs {
+    /// The table for start rows `band` and window radius `r`, into `self` (buffers reused);
+    /// false if it would be too large.
+    fn compute(
+        &mut self,
+        kernel: Kernel,
+        input: &WalkInput,
+        inv: f32,
+        r: usize,
+        band: Range<usize>,
+    ) -> bool {
+        let (w, h) = input.color.dims();
+        let ri = r as isize;
+        let offsets: Vec<(isize, isize)> = (1..=ri)
+            .map(|dx| (dx, 0))
+            .chain((1..=ri).flat_map(|dy| (-ri..=ri).map(move |dx| (dx, dy))))
+            .collect();
+        let first_row = band.start.saturating_sub(r);
+        let rows = band.end - first_row;
+        let n = offsets.len() * rows * w;
+        if n > PAIRS_MAX_FLOATS {
+            return false;
+        }
+        let planes = input.features.planes(first_row..(band.end + r).min(h), 0);
+        let depth_weight = input.features.depth_weight();
+        let (log, lin) = (&mut self.log, &mut self.lin);
+        log.clear();
+        log.resize(n, f32::NEG_INFINITY);
+        lin.clear();
+        lin.resize(n, 0.0);
+        for (o, &(dx, dy)) in offsets.iter().enumerate() {
+            let lo = (-dx).max(0) as usize;
+            let hi = (w as isize - dx).clamp(0, w as isize) as usize;
+            for y in first_row..band.end {
+                let ny = y + dy as usize;
+                if ny >= h || lo >= hi {
+                    continue;
+                }
+                let at = (o * rows + y - first_row) * w;
+                let t = &mut log[at + lo..at + hi];
+                let center = planes.offset(lo as isize, y);
+                let other = planes.offset(lo as isize + dx, ny);
+                distance_row(kernel, &planes, depth_weight, center, other, t);
+                for v in t.iter_mut() {
+                    *v = -(*v * *v) * inv;
+                }
+                let e = &mut lin[at + lo..at + hi];
+                e.copy_from_slice(t);
+                exp_neg_row(kernel, e);
+            }
+        }
+        (self.offsets, self.first_row, self.rows, self.width) = (offsets, first_row, rows, w);
+        true
+    }
+
+    /// Entry (offset index `o`, pixel (x, y)): the log term and its exp.
+    #[inline]
+    fn at(&self, o: usize, x: usize, y: usize) -> (f32, f32) {
+        let i = (o * self.rows + y - self.first_row) * self.width + x;
+        (self.log[i], self.lin[i])
+    }
 }
 
 /// The x0 terms −d(x0, y)²/(2σ²) of one start pixel and their exps, cached in (2r+3)² grids
@@ -502,15 +666,15 @@ struct Window<'g> {
 }
 
 impl<'g> Window<'g> {
-    /// `planes` (the band's features as planes) selects the AVX2 row filler; only pass it when the
-    /// CPU has AVX2.
+    /// Fills x0's grids from the band's `pairs` table when there is one, else by computing each
+    /// cell's distance (windows too large for a table).
     #[allow(clippy::too_many_arguments)]
     fn fill(
         input: &WalkInput,
         inv: f32,
-        grid: &'g mut Vec<f32>,
-        egrid: &'g mut Vec<f32>,
-        planes: Option<&FeaturePlanes>,
+        grid: &'g mut [f32],
+        egrid: &'g mut [f32],
+        pairs: Option<&Pairs>,
         r: usize,
         x0: usize,
         y0: usize,
@@ -519,41 +683,48 @@ impl<'g> Window<'g> {
         let side = 2 * r + 3;
         let i0 = y0 * w + x0;
         let blocked = |j: usize| input.mask.is_some_and(|m| m[j]);
-        grid.clear();
-        grid.resize(side * side, f32::NEG_INFINITY);
-        egrid.clear();
-        egrid.resize(side * side, 0.0);
-        let (ylo, yhi) = (y0.saturating_sub(r), (y0 + r).min(h - 1));
-        let (xlo, xhi) = (x0.saturating_sub(r), (x0 + r).min(w - 1));
-        for y in ylo..=yhi {
-            let row = (y + r + 1 - y0) * side + r + 1;
-            let cell = |x: usize| row + x - x0;
-            #[cfg(target_arch = "x86_64")]
-            if let Some(planes) = planes {
-                // SAFETY: planes are only built when the CPU has AVX2.
-                unsafe {
-                    avx2::fill_row(
-                        input,
-                        inv,
-                        planes,
-                        grid,
-                        egrid,
-                        (i0, x0, row),
-                        y,
-                        xlo..xhi + 1,
-                    )
-                };
-                continue;
+        let (grid, egrid) = (&mut grid[..side * side], &mut egrid[..side * side]);
+        grid.fill(f32::NEG_INFINITY);
+        egrid.fill(0.0);
+        let center = (r + 1) * side + r + 1;
+        if let Some(pairs) = pairs {
+            if !blocked(i0) {
+                let d = input.features.distance(i0, i0);
+                grid[center] = -(d * d) * inv;
+                egrid[center] = exp_neg(grid[center]);
             }
-            #[cfg(not(target_arch = "x86_64"))]
-            let _ = planes;
-            for x in xlo..=xhi {
-                let j = y * w + x;
-                if !blocked(j) {
-                    let d = input.features.distance(i0, j);
-                    let g = cell(x);
-                    grid[g] = -(d * d) * inv;
-                    egrid[g] = exp_neg(grid[g]);
+            let inside =
+                |x: isize, y: isize| x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h;
+            let (sx, sy) = (x0 as isize, y0 as isize);
+            for (o, &(dx, dy)) in pairs.offsets.iter().enumerate() {
+                let cell = dy * side as isize + dx;
+                // x0 + o: the entry of x0 itself.
+                let (x, y) = (sx + dx, sy + dy);
+                if inside(x, y) && !blocked(y as usize * w + x as usize) {
+                    let (g, e) = pairs.at(o, x0, y0);
+                    let c = (center as isize + cell) as usize;
+                    (grid[c], egrid[c]) = (g, e);
+                }
+                // x0 − o: the entry of x0 − o, whose partner at +o is x0 (d is symmetric).
+                let (x, y) = (sx - dx, sy - dy);
+                if inside(x, y) && !blocked(y as usize * w + x as usize) {
+                    let (g, e) = pairs.at(o, x as usize, y as usize);
+                    let c = (center as isize - cell) as usize;
+                    (grid[c], egrid[c]) = (g, e);
+                }
+            }
+        } else {
+            let (ylo, yhi) = (y0.saturating_sub(r), (y0 + r).min(h - 1));
+            let (xlo, xhi) = (x0.saturating_sub(r), (x0 + r).min(w - 1));
+            for y in ylo..=yhi {
+                for x in xlo..=xhi {
+                    let j = y * w + x;
+                    if !blocked(j) {
+                        let d = input.features.distance(i0, j);
+                        let g = (y + r + 1 - y0) * side + r + 1 + x - x0;
+                        grid[g] = -(d * d) * inv;
+                        egrid[g] = exp_neg(grid[g]);
+                    }
                 }
             }
         }
@@ -630,14 +801,9 @@ mod avx2 {
 
     use std::arch::x86_64::*;
 
-    use std::ops::Range;
-
-    use super::{
-        choose_log, pixel_key, uniform, walk_key, Accum, Near, Window, LINEAR_MIN, OFFSETS,
-    };
+    use super::{choose_log, pixel_key, uniform, walk_key, Accum, Near, LINEAR_MIN, OFFSETS};
     use crate::fastmath::avx2::exp_neg8;
     use crate::fastmath::{LN2_HI, LN2_LO, LN_POLY};
-    use crate::features::{FeaturePlanes, DEPTH_EPS};
     use crate::walk::{WalkInput, WalkParams};
 
     /// Walks in lockstep per start pixel (a multiple of 4, the lanes of the f64 tail).
@@ -703,93 +869,6 @@ mod avx2 {
         add(add(f, y), mul(ef, set(LN2_HI)))
     }
 
-    /// `features::distance(center, ·)` against the 8 pixels (x .. x+8, y) of `planes`.
-    #[inline]
-    #[target_feature(enable = "avx2")]
-    fn distance8(
-        center: &[f32; 16],
-        depth_weight: f32,
-        planes: &FeaturePlanes,
-        x: isize,
-        y: usize,
-    ) -> __m256 {
-        let (add, mul) = (_mm256_add_ps, _mm256_mul_ps);
-        let at = planes.offset(x, y);
-        // SAFETY: lane8 returns 8 floats; unaligned load.
-        let b = |lane: usize| unsafe { _mm256_loadu_ps(planes.lane8(lane, at).as_ptr()) };
-        let diff = |lane: usize| _mm256_sub_ps(_mm256_set1_ps(center[lane]), b(lane));
-        let sq = |lane: usize| {
-            let d = diff(lane);
-            mul(d, d)
-        };
-        let abs_mask = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fff_ffff));
-        let abs = |lane: usize| _mm256_and_ps(diff(lane), abs_mask);
-        let color = _mm256_sqrt_ps(add(add(sq(0), sq(1)), sq(2)));
-        let albedo = _mm256_sqrt_ps(add(add(sq(3), sq(4)), sq(5)));
-        let normal = add(add(sq(6), sq(7)), sq(8));
-        let material = add(add(add(abs(9), abs(10)), abs(11)), abs(12));
-        let depth = if depth_weight > 0.0 {
-            let denom = _mm256_max_ps(
-                _mm256_max_ps(_mm256_set1_ps(center[13]), b(13)),
-                _mm256_set1_ps(DEPTH_EPS),
-            );
-            _mm256_div_ps(mul(_mm256_set1_ps(depth_weight), abs(13)), denom)
-        } else {
-            _mm256_setzero_ps()
-        };
-        add(add(add(add(color, albedo), normal), material), depth)
-    }
-
-    /// One row of `Window::fill`: the cells x ∈ `xs` of image row y, compared with start pixel i0,
-    /// 8 at a time, into the grid row whose cell for column x is `row + x − x0`.
-    ///
-    /// # Safety
-    /// The CPU must support AVX2.
-    #[allow(clippy::too_many_arguments)]
-    #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn fill_row(
-        input: &WalkInput,
-        inv: f32,
-        planes: &FeaturePlanes,
-        grid: &mut [f32],
-        egrid: &mut [f32],
-        (i0, x0, row): (usize, usize, usize),
-        y: usize,
-        xs: Range<usize>,
-    ) {
-        let w = input.color.width();
-        let center = input.features.record(i0);
-        let depth_weight = input.features.depth_weight();
-        let blocked = |j: usize| input.mask.is_some_and(|m| m[j]);
-        let neg = _mm256_castsi256_ps(_mm256_set1_epi32(i32::MIN));
-        let mut x = xs.start;
-        while x < xs.end {
-            let n = (xs.end - x).min(8);
-            let d = distance8(center, depth_weight, planes, x as isize, y);
-            let t = _mm256_mul_ps(_mm256_xor_ps(_mm256_mul_ps(d, d), neg), _mm256_set1_ps(inv));
-            let e = exp_neg8(t);
-            let (mut tv, mut ev) = ([0.0f32; 8], [0.0f32; 8]);
-            // SAFETY: both arrays hold 8 floats; unaligned stores.
-            unsafe {
-                _mm256_storeu_ps(tv.as_mut_ptr(), t);
-                _mm256_storeu_ps(ev.as_mut_ptr(), e);
-            }
-            let g = row + x - x0;
-            if input.mask.is_none() {
-                grid[g..g + n].copy_from_slice(&tv[..n]);
-                egrid[g..g + n].copy_from_slice(&ev[..n]);
-            } else {
-                for lane in 0..n {
-                    if !blocked(y * w + x + lane) {
-                        grid[g + lane] = tv[lane];
-                        egrid[g + lane] = ev[lane];
-                    }
-                }
-            }
-            x += 8;
-        }
-    }
-
     /// The window values of cell g's 8 neighbours, in lane order: three above, left, right, three below.
     #[inline]
     #[target_feature(enable = "avx2")]
@@ -816,7 +895,7 @@ mod avx2 {
     #[target_feature(enable = "avx2")]
     fn pick(
         near: &Near,
-        win: &Window,
+        win: &Batch,
         goff: &[isize; 8],
         g: usize,
         i: usize,
@@ -848,31 +927,54 @@ mod avx2 {
         choose_log(&a, u).map(|(k, x, sum)| Pick { k, x, sum })
     }
 
-    /// `super::walk_windowed`, bit for bit. `parts` is scratch space for the walks' sums.
+    /// Start pixels per call of [`walk_batch`] for `walks` walks each: enough walks to fill the slots.
+    pub(super) fn batch(walks: u32) -> usize {
+        SLOTS.div_ceil(walks.max(1) as usize).max(1)
+    }
+
+    /// The window grids of a batch of start pixels, in one buffer.
+    pub(super) struct Batch<'a> {
+        pub grid: &'a [f32],
+        pub egrid: &'a [f32],
+        pub side: usize,
+        /// Per start pixel: the grid cell of its centre, and its pixel index.
+        pub starts: &'a [(usize, usize)],
+    }
+
+    /// `super::walk_windowed` for every start pixel of `win`, bit for bit, their walks sharing the
+    /// slots (so few walks per pixel still fill a register). `parts` is scratch space for the walks'
+    /// sums; `accs[b]` receives start pixel b's result. Returns the steps taken.
     ///
     /// # Safety
     /// The CPU must support AVX2.
     #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn walk_windowed(
+    pub(super) unsafe fn walk_batch(
         input: &WalkInput,
         params: &WalkParams,
         near: &Near,
-        win: &Window,
+        win: Batch,
         parts: &mut Vec<Accum>,
-    ) -> (Accum, u64) {
+        accs: &mut [Accum],
+    ) -> u64 {
         let w = input.color.width();
         let goff: [isize; 8] = OFFSETS.map(|(dx, dy)| dy * win.side as isize + dx);
         let ioff: [isize; 8] = OFFSETS.map(|(dx, dy)| dy * w as isize + dx);
         let ln_pmin = _mm256_set1_pd(params.p_min.ln());
-        let pkey = pixel_key(input.seed, input.level, win.i0);
+        let walks = params.walks as usize;
+        let total = walks * win.starts.len();
+        let pkeys: [u64; SLOTS] = std::array::from_fn(|b| {
+            win.starts
+                .get(b)
+                .map_or(0, |&(_, i0)| pixel_key(input.seed, input.level, i0))
+        });
         parts.clear();
-        parts.resize(params.walks as usize, Accum::default());
+        parts.resize(total, Accum::default());
 
-        // Slot state, one lane each.
-        let mut walk = [0u32; SLOTS];
+        // Slot state, one lane each; job j is walk j % walks of start pixel j / walks.
+        let mut job = [0usize; SLOTS];
         let mut key = [0u64; SLOTS];
-        let mut g = [win.center(); SLOTS];
-        let mut i = [win.i0; SLOTS];
+        let mut g = [0usize; SLOTS];
+        let mut i = [0usize; SLOTS];
         let mut step = [0i32; SLOTS];
         let mut live = [false; SLOTS];
         let mut log_p = [0.0f64; SLOTS];
@@ -880,11 +982,16 @@ mod avx2 {
         let mut weight = [0.0f64; SLOTS];
 
         // Slots beyond the walk count would only add idle lanes to every round.
-        let slots = (params.walks as usize).min(SLOTS).div_ceil(4) * 4;
-        let mut next = 0u32;
+        let slots = total.min(SLOTS).div_ceil(4) * 4;
+        let start = |j: usize| {
+            let (cell, i0) = win.starts[j / walks];
+            (cell, i0, walk_key(pkeys[j / walks], (j % walks) as u32))
+        };
+        let mut next = 0usize;
         for s in 0..slots {
-            if next < params.walks {
-                (walk[s], key[s], live[s]) = (next, walk_key(pkey, next), true);
+            if next < total {
+                (g[s], i[s], key[s]) = start(next);
+                (job[s], live[s]) = (next, true);
                 next += 1;
             }
         }
@@ -902,7 +1009,7 @@ mod avx2 {
                     continue;
                 }
                 let u = uniform(key[s], step[s] as u32 + 1);
-                if let Some(p) = pick(near, win, &goff, g[s], i[s], u) {
+                if let Some(p) = pick(near, &win, &goff, g[s], i[s], u) {
                     (going[s], ks[s], xs[s], sums[s]) = (true, p.k, p.x, p.sum);
                 }
             }
@@ -955,27 +1062,31 @@ mod avx2 {
                     continue;
                 }
                 steps += step[s] as u64;
-                parts[walk[s] as usize] = Accum {
+                parts[job[s]] = Accum {
                     sum: [sum[0][s], sum[1][s], sum[2][s]],
                     weight: weight[s],
                 };
-                (g[s], i[s], step[s], log_p[s], weight[s]) = (win.center(), win.i0, 0, 0.0, 0.0);
+                (step[s], log_p[s], weight[s]) = (0, 0.0, 0.0);
                 for c in 0..3 {
                     sum[c][s] = 0.0;
                 }
-                if next < params.walks {
-                    (walk[s], key[s]) = (next, walk_key(pkey, next));
+                if next < total {
+                    (g[s], i[s], key[s]) = start(next);
+                    job[s] = next;
                     next += 1;
                 } else {
                     live[s] = false;
                 }
             }
         }
-        let mut acc = Accum::new(input, win.i0, params);
-        for part in parts.iter() {
-            acc.merge(part);
+        for (b, &(_, i0)) in win.starts.iter().enumerate() {
+            let mut acc = Accum::new(input, i0, params);
+            for part in &parts[b * walks..(b + 1) * walks] {
+                acc.merge(part);
+            }
+            accs[b] = acc;
         }
-        (acc, steps)
+        steps
     }
 }
 
