@@ -65,9 +65,10 @@ pub fn pass_with(
             let y_begin = band * BAND_ROWS;
             let y_end = (y_begin + BAND_ROWS).min(h);
             let rows = y_begin.saturating_sub(reach)..(y_end + reach).min(h);
-            let feats = features.planes(rows.clone(), reach);
+            // Padded so every run is computed in whole groups of 8 (the extra results are dropped).
+            let feats = features.planes(rows.clone(), reach + 8);
             // Colour (3 lanes) and the keep weight (lane 3: 0 on masked pixels, else 1).
-            let cols = FeaturePlanes::build(w, rows, reach, 4, |i, lane| {
+            let cols = FeaturePlanes::build(w, rows, reach + 8, 4, |i, lane| {
                 if lane < 3 {
                     color.data()[3 * i + lane]
                 } else if mask.is_some_and(|m| m[i]) {
@@ -77,7 +78,7 @@ pub fn pass_with(
                 }
             });
             let mut acc = Acc::new(w);
-            let mut scratch = vec![0.0f32; w];
+            let mut scratch = vec![0.0f32; w + 8];
             for y in y_begin..y_end {
                 acc.clear();
                 for (a, &ha) in TAPS.iter().enumerate() {
@@ -95,8 +96,9 @@ pub fn pass_with(
                         }
                         let center = feats.offset(lo as isize, y);
                         let other = feats.offset(lo as isize + dx, ny as usize);
-                        let e = &mut scratch[..hi - lo];
+                        let e = &mut scratch[..(hi - lo).next_multiple_of(8)];
                         distance_row(kernel, &feats, depth_weight, center, other, e);
+                        let e = &mut e[..hi - lo];
                         let acc = acc.range(lo, hi);
                         add_tap(kernel, &cols, center, other, ha * hb, inv, e, acc);
                     }

@@ -265,6 +265,17 @@ impl Features {
         self.width
     }
 
+    /// Replaces the colour feature F1 with that of `color` (same size), keeping the others: for
+    /// filters that compare each pass's result, where only the colour changes.
+    pub fn recolor(&mut self, color: &Image, weights: &Weights, tone: Tone, exposure: f32) {
+        for (i, r) in self.records.iter_mut().enumerate() {
+            let c = color.pixel(i);
+            for k in 0..3 {
+                r[k] = weights.color * tone.apply(exposure * c[k]);
+            }
+        }
+    }
+
     pub fn height(&self) -> usize {
         self.height
     }

@@ -350,9 +350,9 @@ impl Near {
         self.lin.resize(n, [0.0f32; 8]);
         // A pixel's backward lanes come from pairs that start one row above.
         let first = rows.start.saturating_sub(1);
-        let planes = input.features.planes(first..(rows.end + 1).min(h), 0);
+        let planes = input.features.planes(first..(rows.end + 1).min(h), RUN_PAD);
         let depth_weight = input.features.depth_weight();
-        let (mut t, mut e) = (vec![0.0f32; w], vec![0.0f32; w]);
+        let (mut t, mut e) = (vec![0.0f32; w + RUN_PAD], vec![0.0f32; w + RUN_PAD]);
         // (forward lane, its reverse lane) of OFFSETS.
         for (fwd, back) in [(4, 3), (5, 2), (6, 1), (7, 0)] {
             let (dx, dy) = OFFSETS[fwd];
@@ -363,10 +363,11 @@ impl Near {
                 if ny >= h || ny >= rows.end || lo >= hi {
                     continue;
                 }
-                let (t, e) = (&mut t[lo..hi], &mut e[lo..hi]);
                 let center = planes.offset(lo as isize, y);
                 let other = planes.offset(lo as isize + dx, ny);
-                distance_row(kernel, &planes, depth_weight, center, other, t);
+                let run = lo..lo + (hi - lo).next_multiple_of(8);
+                distance_row(kernel, &planes, depth_weight, center, other, &mut t[run]);
+                let (t, e) = (&mut t[lo..hi], &mut e[lo..hi]);
                 for v in t.iter_mut() {
                     *v = -(*v * *v) * inv;
                 }
@@ -589,6 +590,10 @@ struct Pairs {
     lin: Vec<f32>,
 }
 
+/// Padding of feature planes so that a run of pairs can be computed in whole groups of 8 (the
+/// extra results are dropped).
+const RUN_PAD: usize = 8;
+
 /// Largest pair table (floats per array) a band builds; larger windows fill cell by cell.
 const PAIRS_MAX_FLOATS: usize = 1 << 22;
 
@@ -615,7 +620,10 @@ impl Pairs {
         if n > PAIRS_MAX_FLOATS {
             return false;
         }
-        let planes = input.features.planes(first_row..(band.end + r).min(h), 0);
+        let planes = input
+            .features
+            .planes(first_row..(band.end + r).min(h), r + RUN_PAD);
+        let mut run = vec![0.0f32; w + RUN_PAD];
         let depth_weight = input.features.depth_weight();
         let (log, lin) = (&mut self.log, &mut self.lin);
         log.clear();
@@ -631,10 +639,19 @@ impl Pairs {
                     continue;
                 }
                 let at = (o * rows + y - first_row) * w;
-                let t = &mut log[at + lo..at + hi];
                 let center = planes.offset(lo as isize, y);
                 let other = planes.offset(lo as isize + dx, ny);
-                distance_row(kernel, &planes, depth_weight, center, other, t);
+                let n = hi - lo;
+                distance_row(
+                    kernel,
+                    &planes,
+                    depth_weight,
+                    center,
+                    other,
+                    &mut run[..n.next_multiple_of(8)],
+                );
+                let t = &mut log[at + lo..at + hi];
+                t.copy_from_slice(&run[..n]);
                 for v in t.iter_mut() {
                     *v = -(*v * *v) * inv;
                 }

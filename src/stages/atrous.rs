@@ -129,15 +129,19 @@ impl Stage for AtrousStage {
             },
             None => None,
         };
+        let (mut features, off) =
+            Features::build(&color, buffers, &p.weights, p.tone, p.exposure)?;
+        if !off.is_empty() {
+            ctx.note(format!(
+                "{}: features off (buffer missing): {}",
+                self.id,
+                off.join(", ")
+            ));
+        }
         for k in 0..p.iterations {
             // The colour feature is re-read from each pass's input: it gets cleaner every pass.
-            let (features, off) = Features::build(&color, buffers, &p.weights, p.tone, p.exposure)?;
-            if k == 0 && !off.is_empty() {
-                ctx.note(format!(
-                    "{}: features off (buffer missing): {}",
-                    self.id,
-                    off.join(", ")
-                ));
+            if k > 0 {
+                features.recolor(&color, &p.weights, p.tone, p.exposure);
             }
             color = atrous::pass(&color, &features, mask.as_deref(), 1 << k, p.sigma);
         }
