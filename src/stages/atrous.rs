@@ -129,8 +129,7 @@ impl Stage for AtrousStage {
             },
             None => None,
         };
-        let (mut features, off) =
-            Features::build(&color, buffers, &p.weights, p.tone, p.exposure)?;
+        let (mut features, off) = Features::build(&color, buffers, &p.weights, p.tone, p.exposure)?;
         if !off.is_empty() {
             ctx.note(format!(
                 "{}: features off (buffer missing): {}",

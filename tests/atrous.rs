@@ -1,0 +1,181 @@
+//! The à-trous stage: both kernels give the same bits, it keeps what it should keep, masked pixels
+//! give no weight, hard inputs stay finite, and bad keys are one-line errors.
+
+mod common;
+
+use common::{assert_bad_input, gsid, synthetic_set, FIXTURE};
+use gsid::atrous::pass_with;
+use gsid::features::{Features, Tone, Weights};
+use gsid::simd::Kernel;
+use gsid::{Buffers, Image};
+
+fn bits(img: &Image) -> Vec<u32> {
+    img.data().iter().map(|v| v.to_bits()).collect()
+}
+
+fn features(color: &Image, set: &Buffers) -> Features {
+    Features::build(color, set, &Weights::default(), Tone::Reinhard, 1.0)
+        .unwrap()
+        .0
+}
+
+#[test]
+fn both_kernels_and_any_thread_count_give_the_same_bits() {
+    for (w, h) in [(1, 1), (2, 3), (23, 17), (40, 9)] {
+        let set = synthetic_set(w, h);
+        let color = set.get("color").unwrap();
+        let f = features(color, &set);
+        let mask: Vec<bool> = (0..w * h).map(|i| i % 7 == 3).collect();
+        for m in [None, Some(mask.as_slice())] {
+            for step in [1, 2, 4] {
+                for sigma in [1e-3, 0.2, 5.0] {
+                    let scalar = pass_with(Kernel::Scalar, color, &f, m, step, sigma);
+                    let fast = pass_with(Kernel::detect(), color, &f, m, step, sigma);
+                    assert_eq!(bits(&scalar), bits(&fast), "{w}x{h} step {step} σ {sigma}");
+                    let one = rayon::ThreadPoolBuilder::new()
+                        .num_threads(1)
+                        .build()
+                        .unwrap()
+                        .install(|| pass_with(Kernel::detect(), color, &f, m, step, sigma));
+                    assert_eq!(bits(&one), bits(&fast), "{w}x{h}: 1 thread against all");
+                    assert!(fast.data().iter().all(|v| v.is_finite()));
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn a_constant_image_stays_constant() {
+    let (w, h) = (19, 11);
+    let mut set = synthetic_set(w, h);
+    let color = Image::from_vec(w, h, 3, vec![0.37; w * h * 3]).unwrap();
+    set.insert("color", color.clone()).unwrap();
+    let f = features(&color, &set);
+    let out = pass_with(Kernel::detect(), &color, &f, None, 2, 0.2);
+    for &v in out.data() {
+        assert!((v - 0.37).abs() < 1e-6, "{v}");
+    }
+}
+
+#[test]
+fn averaging_stops_at_an_albedo_edge_and_smooths_within_a_surface() {
+    // Left half dark red surface, right half bright grey; the colour carries noise.
+    let (w, h) = (24, 16);
+    let mut set = synthetic_set(w, h);
+    let mut albedo = vec![0.0f32; w * h * 3];
+    let mut color = vec![0.0f32; w * h * 3];
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            let noise = if (x * 7 + y * 13) % 5 < 2 { 0.1 } else { -0.05 };
+            let (a, c) = if x < w / 2 {
+                ([0.8, 0.1, 0.1], 0.2)
+            } else {
+                ([0.7, 0.7, 0.7], 0.9)
+            };
+            albedo[3 * i..3 * i + 3].copy_from_slice(&a);
+            for k in 0..3 {
+                color[3 * i + k] = c + noise;
+            }
+        }
+    }
+    set.insert("albedo", Image::from_vec(w, h, 3, albedo).unwrap())
+        .unwrap();
+    // One flat, fully lit plane: only the albedo has an edge.
+    set.insert(
+        "normal",
+        Image::from_fn(w, h, 3, |_, _, c| (c == 2) as u8 as f32),
+    )
+    .unwrap();
+    set.insert("depth", Image::from_fn(w, h, 1, |_, _, _| 1.0))
+        .unwrap();
+    set.insert("shadow", Image::from_fn(w, h, 1, |_, _, _| 1.0))
+        .unwrap();
+    let color = Image::from_vec(w, h, 3, color).unwrap();
+    set.insert("color", color.clone()).unwrap();
+    let f = features(&color, &set);
+    let out = pass_with(Kernel::detect(), &color, &f, None, 1, 0.2);
+    let spread = |img: &Image, xs: std::ops::Range<usize>| {
+        let v: Vec<f32> = (0..h)
+            .flat_map(|y| xs.clone().map(move |x| (x, y)))
+            .map(|(x, y)| img.pixel(y * w + x)[0])
+            .collect();
+        let mean = v.iter().sum::<f32>() / v.len() as f32;
+        (
+            mean,
+            v.iter().map(|a| (a - mean).abs()).fold(0.0f32, f32::max),
+        )
+    };
+    let (left_in, left_in_spread) = spread(&color, 0..w / 2);
+    let (left_out, left_out_spread) = spread(&out, 0..w / 2);
+    let (right_in, _) = spread(&color, w / 2..w);
+    let (right_out, _) = spread(&out, w / 2..w);
+    assert!(left_out_spread < 0.6 * left_in_spread, "noise is smoothed");
+    assert!(
+        (left_out - left_in).abs() < 0.02,
+        "no light leaks across the edge"
+    );
+    assert!((right_out - right_in).abs() < 0.02);
+    // The columns next to the edge keep their side's level.
+    for y in 0..h {
+        assert!(out.pixel(y * w + w / 2 - 1)[0] < 0.45);
+        assert!(out.pixel(y * w + w / 2)[0] > 0.65);
+    }
+}
+
+#[test]
+fn masked_pixels_give_no_weight_and_fireflies_stay_finite() {
+    let (w, h) = (15, 13);
+    let set = synthetic_set(w, h);
+    let base = set.get("color").unwrap().clone();
+    let firefly = 7 * w + 7;
+    let mut mask = vec![false; w * h];
+    mask[firefly] = true;
+    let mut outs = Vec::new();
+    for value in [0.0f32, 1e6] {
+        let mut color = base.clone();
+        color.pixel_mut(firefly).fill(value);
+        let f = features(&color, &set);
+        let out = pass_with(Kernel::detect(), &color, &f, Some(&mask), 1, 0.2);
+        assert!(out.data().iter().all(|v| v.is_finite()));
+        // Unmasked, the 1e6 firefly is still finite and stays bright where it is.
+        let open = pass_with(Kernel::detect(), &color, &f, None, 1, 0.2);
+        assert!(open.data().iter().all(|v| v.is_finite()));
+        outs.push(out);
+    }
+    for i in (0..w * h).filter(|&i| i != firefly) {
+        assert_eq!(
+            outs[0].pixel(i),
+            outs[1].pixel(i),
+            "pixel {i} saw the masked firefly"
+        );
+    }
+}
+
+#[test]
+fn bad_atrous_keys_are_one_line_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.exr");
+    let set = format!("{FIXTURE}/spp1");
+    for (key, culprit) in [
+        ("atrous.iterations=0", "iterations"),
+        ("atrous.iterations=13", "iterations"),
+        ("atrous.sigma=-1", "sigma"),
+        ("atrous.sigmaa=1", "sigmaa"),
+        ("atrous.weights.albedo=-2", "albedo"),
+    ] {
+        let res = gsid(&[
+            "denoise",
+            &set,
+            "--pipeline",
+            "full",
+            "--set",
+            key,
+            "-o",
+            out.to_str().unwrap(),
+        ]);
+        assert_bad_input(&res, culprit);
+        assert!(!out.exists(), "{key}: nothing written");
+    }
+}
