@@ -95,7 +95,8 @@ fn averaging_stops_at_an_albedo_edge_and_smooths_within_a_surface() {
     let color = Image::from_vec(w, h, 3, color).unwrap();
     set.insert("color", color.clone()).unwrap();
     let f = features(&color, &set);
-    let out = pass_with(Kernel::detect(), &color, &f, None, 1, 0.2);
+    // σ = 1: this colour is raw noise, not a GSID result.
+    let out = pass_with(Kernel::detect(), &color, &f, None, 1, 1.0);
     let spread = |img: &Image, xs: std::ops::Range<usize>| {
         let v: Vec<f32> = (0..h)
             .flat_map(|y| xs.clone().map(move |x| (x, y)))
@@ -111,7 +112,10 @@ fn averaging_stops_at_an_albedo_edge_and_smooths_within_a_surface() {
     let (left_out, left_out_spread) = spread(&out, 0..w / 2);
     let (right_in, _) = spread(&color, w / 2..w);
     let (right_out, _) = spread(&out, w / 2..w);
-    assert!(left_out_spread < 0.6 * left_in_spread, "noise is smoothed");
+    assert!(
+        left_out_spread < 0.5 * left_in_spread,
+        "noise is smoothed: std {left_in_spread} → {left_out_spread}"
+    );
     assert!(
         (left_out - left_in).abs() < 0.02,
         "no light leaks across the edge"
