@@ -183,3 +183,49 @@ fn bad_atrous_keys_are_one_line_errors() {
         assert!(!out.exists(), "{key}: nothing written");
     }
 }
+
+#[test]
+fn demodulation_keeps_texture_out_of_the_average() {
+    use gsid::pipeline::PipelineSpec;
+    // A flat, evenly lit plane with a 2×2-pixel checker albedo and noisy lighting.
+    let (w, h) = (32, 32);
+    let mut set = synthetic_set(w, h);
+    let check = |x: usize, y: usize| if (x / 2 + y / 2) % 2 == 0 { 0.2 } else { 0.8 };
+    let noise =
+        |x: usize, y: usize| 1.0 + 0.3 * (((x * 7919 + y * 104_729) % 97) as f32 / 97.0 - 0.5);
+    set.insert("albedo", Image::from_fn(w, h, 3, |x, y, _| check(x, y)))
+        .unwrap();
+    set.insert(
+        "normal",
+        Image::from_fn(w, h, 3, |_, _, c| (c == 2) as u8 as f32),
+    )
+    .unwrap();
+    set.insert("depth", Image::from_fn(w, h, 1, |_, _, _| 1.0))
+        .unwrap();
+    set.insert("shadow", Image::from_fn(w, h, 1, |_, _, _| 1.0))
+        .unwrap();
+    set.insert(
+        "color",
+        Image::from_fn(w, h, 3, |x, y, _| 0.5 * check(x, y) * noise(x, y)),
+    )
+    .unwrap();
+    let reference = Image::from_fn(w, h, 3, |x, y, _| 0.5 * check(x, y));
+    let err = |demodulate: bool| {
+        let text = format!(
+            "name = \"t\"\ndescription = \"t\"\n[[stage]]\nkind = \"atrous\"\nsigma = 1.0\ndemodulate = {demodulate}\n"
+        );
+        let mut b = set.clone();
+        let (out, _) = PipelineSpec::parse(&text, "t.toml")
+            .unwrap()
+            .build()
+            .unwrap()
+            .run(&mut b, 0, false)
+            .unwrap();
+        gsid::metrics::score(&out, &reference).unwrap().relmse
+    };
+    let (plain, demodulated) = (err(false), err(true));
+    assert!(
+        demodulated < 0.5 * plain,
+        "relMSE demodulated {demodulated} against plain {plain}"
+    );
+}

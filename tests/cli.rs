@@ -328,6 +328,7 @@ fn ablate_prints_and_writes_the_table() {
         "full (full)",
         "without outlier",
         "without pyramid",
+        "without atrous",
         "weight albedo = 0",
         "weight depth = 0",
         "plain SID",
@@ -335,8 +336,8 @@ fn ablate_prints_and_writes_the_table() {
         assert!(table.contains(variant), "missing {variant}: {table}");
     }
     let text = std::fs::read_to_string(&csv).unwrap();
-    // Header, then: full, two stages removed, eight weights zeroed, plain SID.
-    assert_eq!(text.lines().count(), 1 + 12, "{text}");
+    // Header, then: full, three stages removed, eight weights zeroed, plain SID.
+    assert_eq!(text.lines().count(), 1 + 13, "{text}");
     assert!(text.starts_with("variant,ssim,psnr,relmse,seconds,delta_ssim"));
     let bad = gsid(&[
         "ablate",

@@ -27,6 +27,9 @@ pub struct AtrousParams {
     pub exposure: f32,
     /// Optional one-channel buffer of pixels that get no weight (> 0.5 = masked).
     pub mask: Option<String>,
+    /// Filter colour / (albedo + 0.01) (the lighting) and multiply the albedo back after, so texture
+    /// detail the albedo buffer carries is never averaged. Needs the `albedo` buffer (else ignored).
+    pub demodulate: bool,
 }
 
 impl Default for AtrousParams {
@@ -38,9 +41,13 @@ impl Default for AtrousParams {
             tone: Tone::Reinhard,
             exposure: 1.0,
             mask: None,
+            demodulate: false,
         }
     }
 }
+
+/// Added to the albedo before dividing by it: black surfaces keep their (small) colour.
+const DEMODULATION_EPS: f32 = 0.01;
 
 /// Most passes accepted: pass 12 would space taps 4096 pixels apart.
 pub const MAX_ITERATIONS: u32 = 12;
@@ -129,6 +136,28 @@ impl Stage for AtrousStage {
             },
             None => None,
         };
+        let albedo = if p.demodulate {
+            match buffers.get_channels("albedo", 3)? {
+                Some(a) if a.dims() == color.dims() => Some(a.clone()),
+                Some(_) => {
+                    return Err(Error::buffer(
+                        "albedo",
+                        "does not match the colour buffer's size",
+                    ))
+                }
+                None => {
+                    ctx.note(format!("{}: no albedo buffer; not demodulating", self.id));
+                    None
+                }
+            }
+        } else {
+            None
+        };
+        if let Some(a) = &albedo {
+            for (c, &a) in color.data_mut().iter_mut().zip(a.data()) {
+                *c /= a.max(0.0) + DEMODULATION_EPS;
+            }
+        }
         let (mut features, off) = Features::build(&color, buffers, &p.weights, p.tone, p.exposure)?;
         if !off.is_empty() {
             ctx.note(format!(
@@ -143,6 +172,11 @@ impl Stage for AtrousStage {
                 features.recolor(&color, &p.weights, p.tone, p.exposure);
             }
             color = atrous::pass(&color, &features, mask.as_deref(), 1 << k, p.sigma);
+        }
+        if let Some(a) = &albedo {
+            for (c, &a) in color.data_mut().iter_mut().zip(a.data()) {
+                *c *= a.max(0.0) + DEMODULATION_EPS;
+            }
         }
         buffers.insert(self.io.output.clone(), color)?;
         Ok(0)
