@@ -1,8 +1,12 @@
 """Choose the fast / balanced / quality presets from `gsid sweep` CSVs, one per fixture.
 
-Every fixture was swept over the same settings (same labels). A setting is *near the front* on a
-fixture when its SSIM is within TOLERANCE of the best SSIM any setting reaches in no more time
-(0 on the Pareto front itself). Only settings near the front on every fixture are candidates.
+Every fixture was swept over the same settings (same labels). Each setting gets its mean seconds
+and mean SSIM over the fixtures; it is *near the front* when its mean SSIM is within TOLERANCE of
+the best mean SSIM any setting reaches in no more mean time (0 on the Pareto front of the means).
+Only settings near that front are candidates. (Requiring nearness on every fixture separately was
+tried first: the cheapest settings differ by less than the run-to-run timing noise, so the
+candidate set changed from run to run and once collapsed to a single setting.) The worst gap to
+any single fixture's front is printed too.
 
   quality  = the candidate with the highest mean SSIM;
   balanced = the fastest candidate whose mean SSIM is within BALANCED_LOSS of quality's;
@@ -50,17 +54,20 @@ def main(paths):
             }
         )
     table.sort(key=lambda r: r["seconds"])
-    candidates = [r for r in table if r["worst_gap"] <= TOLERANCE]
+    means = {r["label"]: (r["seconds"], r["ssim"]) for r in table}
+    for r in table:
+        r["gap"] = gap_to_front(means, r["label"])
+    candidates = [r for r in table if r["gap"] <= TOLERANCE]
     quality = max(candidates, key=lambda r: r["ssim"])
     pick = lambda loss: next(r for r in candidates if r["ssim"] >= quality["ssim"] - loss)
     chosen = {"fast": pick(FAST_LOSS), "balanced": pick(BALANCED_LOSS), "quality": quality}
 
-    print(f"{len(paths)} fixtures, {len(table)} settings; near the front = within {TOLERANCE} SSIM on every fixture\n")
-    print("| setting | mean seconds | mean SSIM | worst gap to front | preset |")
-    print("| --- | --- | --- | --- | --- |")
+    print(f"{len(paths)} fixtures, {len(table)} settings; near the front = within {TOLERANCE} SSIM of the front of the means\n")
+    print("| setting | mean seconds | mean SSIM | gap to the front of the means | worst gap to one fixture's front | preset |")
+    print("| --- | --- | --- | --- | --- | --- |")
     for r in table:
         names = ", ".join(n for n, c in chosen.items() if c is r)
-        print(f"| {r['label']} | {r['seconds']:.3f} | {r['ssim']:.4f} | {r['worst_gap']:.4f} | {names} |")
+        print(f"| {r['label']} | {r['seconds']:.3f} | {r['ssim']:.4f} | {r['gap']:.4f} | {r['worst_gap']:.4f} | {names} |")
 
 
 if __name__ == "__main__":
