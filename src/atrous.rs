@@ -12,12 +12,18 @@
 //! Deterministic (no random numbers); every pixel's sums are formed in f64 in one fixed order, so
 //! the result is the same bits on any thread count and with either kernel.
 
+use std::ops::Range;
+
 use rayon::prelude::*;
 
 use crate::fastmath::exp_neg_row;
 use crate::features::{distance_row, FeaturePlanes, Features};
 use crate::image::Image;
 use crate::simd::Kernel;
+
+/// The features of image rows `rows`, as [`Features::build_rows`] makes them: a pass asks for one
+/// band (plus halo) at a time, so the image's features (64 bytes a pixel) never exist at once.
+pub type Bands<'a> = dyn Fn(Range<usize>) -> Features + Sync + 'a;
 
 /// The B3-spline taps of one axis (sum 1).
 pub const TAPS: [f32; 5] = [1.0 / 16.0, 0.25, 0.375, 0.25, 1.0 / 16.0];
@@ -31,7 +37,7 @@ const BAND_ROWS: usize = 32;
 /// taps all have weight 0 keeps its input value.
 pub fn pass(
     color: &Image,
-    features: &Features,
+    features: &Bands,
     mask: Option<&[bool]>,
     step: usize,
     sigma: f32,
@@ -44,7 +50,7 @@ pub fn pass(
 pub fn pass_with(
     kernel: Kernel,
     color: &Image,
-    features: &Features,
+    features: &Bands,
     mask: Option<&[bool]>,
     step: usize,
     sigma: f32,
@@ -57,7 +63,6 @@ pub fn pass_with(
     }
     let reach = 2 * step;
     let inv = 1.0 / (2.0 * sigma * sigma);
-    let depth_weight = features.depth_weight();
     out.data_mut()
         .par_chunks_mut(3 * w * BAND_ROWS)
         .enumerate()
@@ -66,7 +71,11 @@ pub fn pass_with(
             let y_end = (y_begin + BAND_ROWS).min(h);
             let rows = y_begin.saturating_sub(reach)..(y_end + reach).min(h);
             // Padded so every run is computed in whole groups of 8 (the extra results are dropped).
-            let feats = features.planes(rows.clone(), reach + 8);
+            let band_features = features(rows.clone());
+            let depth_weight = band_features.depth_weight();
+            let feats = band_features.planes(0..rows.len(), reach + 8);
+            // The planes' row 0 is image row `first`; `cols` keeps image rows.
+            let first = rows.start;
             // Colour (3 lanes) and the keep weight (lane 3: 0 on masked pixels, else 1).
             let cols = FeaturePlanes::build(w, rows, reach + 8, 4, |i, lane| {
                 if lane < 3 {
@@ -94,8 +103,8 @@ pub fn pass_with(
                         if lo >= hi {
                             continue;
                         }
-                        let center = feats.offset(lo as isize, y);
-                        let other = feats.offset(lo as isize + dx, ny as usize);
+                        let center = feats.offset(lo as isize, y - first);
+                        let other = feats.offset(lo as isize + dx, ny as usize - first);
                         let e = &mut scratch[..(hi - lo).next_multiple_of(8)];
                         distance_row(kernel, &feats, depth_weight, center, other, e);
                         let e = &mut e[..hi - lo];

@@ -27,6 +27,8 @@ pub const EXP_POLY: [f32; 6] = [
 pub fn exp_neg(x: f32) -> f32 {
     // Branch-free (a select at the end, NaN fails the test) so loops over it vectorise.
     let valid = x >= EXP_MIN_ARG;
+    // max/min rather than clamp: the NaN handling of the AVX2 version's maxps/minps.
+    #[allow(clippy::manual_clamp)]
     let x = x.max(EXP_MIN_ARG).min(0.0);
     // Round to nearest by truncating v − ½ (v ≤ 0): one cvttss2si, no libm call, and the same
     // instruction the AVX2 version uses.
@@ -115,6 +117,9 @@ pub mod avx2 {
     }
 
     /// `fastmath::exp_neg` on 8 lanes.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
     #[inline]
     #[target_feature(enable = "avx2")]
     pub fn exp_neg8(x: __m256) -> __m256 {

@@ -182,7 +182,23 @@ impl Features {
         tone: Tone,
         exposure: f32,
     ) -> Result<(Features, Vec<&'static str>)> {
-        let (w, h) = color.dims();
+        Features::build_rows(color, buffers, weights, tone, exposure, 0..color.height())
+    }
+
+    /// [`Features::build`] for image rows `rows` only: a Features `rows.len()` rows high whose row 0
+    /// is image row `rows.start`. Lets a filter hold one band's features instead of the image's
+    /// (64 bytes a pixel).
+    pub fn build_rows(
+        color: &Image,
+        buffers: &Buffers,
+        weights: &Weights,
+        tone: Tone,
+        exposure: f32,
+        rows: std::ops::Range<usize>,
+    ) -> Result<(Features, Vec<&'static str>)> {
+        let w = color.width();
+        let h = rows.len();
+        let base = rows.start * w;
         let n = w * h;
         let mut effective = *weights;
         let mut off = Vec::new();
@@ -195,7 +211,7 @@ impl Features {
         let wt = effective;
         let mut records = vec![[0.0f32; FEATURE_LANES]; n];
         for (i, r) in records.iter_mut().enumerate() {
-            let c = color.pixel(i);
+            let c = color.pixel(base + i);
             for k in 0..3 {
                 r[k] = wt.color * tone.apply(exposure * c[k]);
             }
@@ -203,7 +219,7 @@ impl Features {
         let fetch = |name: &str, channels: usize| -> Result<Option<&Image>> {
             let img = buffers.get_channels(name, channels)?;
             if let Some(img) = img {
-                if img.dims() != (w, h) {
+                if img.dims() != color.dims() {
                     return Err(Error::buffer(
                         name,
                         "does not match the colour buffer's size",
@@ -215,7 +231,7 @@ impl Features {
         let pack =
             |records: &mut [[f32; FEATURE_LANES]], img: &Image, first: usize, scales: &[f32]| {
                 for (i, r) in records.iter_mut().enumerate() {
-                    for (k, (&v, &scale)) in img.pixel(i).iter().zip(scales).enumerate() {
+                    for (k, (&v, &scale)) in img.pixel(base + i).iter().zip(scales).enumerate() {
                         r[first + k] = scale * v;
                     }
                 }
@@ -263,17 +279,6 @@ impl Features {
 
     pub fn width(&self) -> usize {
         self.width
-    }
-
-    /// Replaces the colour feature F1 with that of `color` (same size), keeping the others: for
-    /// filters that compare each pass's result, where only the colour changes.
-    pub fn recolor(&mut self, color: &Image, weights: &Weights, tone: Tone, exposure: f32) {
-        for (i, r) in self.records.iter_mut().enumerate() {
-            let c = color.pixel(i);
-            for k in 0..3 {
-                r[k] = weights.color * tone.apply(exposure * c[k]);
-            }
-        }
     }
 
     pub fn height(&self) -> usize {
@@ -362,6 +367,7 @@ impl FeaturePlanes {
 /// d for runs of pixel pairs: `out[x]` = d(pixel at plane offset `center + x`, pixel at
 /// `other + x`) of `planes`, for x < out.len(). Bit for bit equal to [`distance`] on the two records
 /// (the AVX2 kernel runs the same operations 8 pairs at a time).
+#[allow(clippy::needless_range_loop)] // x indexes the output and two plane slices alike
 pub fn distance_row(
     kernel: Kernel,
     planes: &FeaturePlanes,

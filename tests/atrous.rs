@@ -13,10 +13,16 @@ fn bits(img: &Image) -> Vec<u32> {
     img.data().iter().map(|v| v.to_bits()).collect()
 }
 
-fn features(color: &Image, set: &Buffers) -> Features {
-    Features::build(color, set, &Weights::default(), Tone::Reinhard, 1.0)
-        .unwrap()
-        .0
+/// The features of any band of rows, as the stage hands them to a pass.
+fn features<'a>(
+    color: &'a Image,
+    set: &'a Buffers,
+) -> impl Fn(std::ops::Range<usize>) -> Features + Sync + 'a {
+    move |rows| {
+        Features::build_rows(color, set, &Weights::default(), Tone::Reinhard, 1.0, rows)
+            .unwrap()
+            .0
+    }
 }
 
 #[test]
@@ -190,7 +196,13 @@ fn demodulation_keeps_texture_out_of_the_average() {
     // A flat, evenly lit plane with a 2×2-pixel checker albedo and noisy lighting.
     let (w, h) = (32, 32);
     let mut set = synthetic_set(w, h);
-    let check = |x: usize, y: usize| if (x / 2 + y / 2) % 2 == 0 { 0.2 } else { 0.8 };
+    let check = |x: usize, y: usize| {
+        if (x / 2 + y / 2).is_multiple_of(2) {
+            0.2
+        } else {
+            0.8
+        }
+    };
     let noise =
         |x: usize, y: usize| 1.0 + 0.3 * (((x * 7919 + y * 104_729) % 97) as f32 / 97.0 - 0.5);
     set.insert("albedo", Image::from_fn(w, h, 3, |x, y, _| check(x, y)))

@@ -110,7 +110,14 @@ impl Stage for AtrousStage {
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
         let p = &self.params;
         let input = &self.io.input;
-        let mut color = buffers.require(input)?.clone();
+        // The stage replaces its input when it writes the same buffer (as in `full`): take it
+        // instead of copying it.
+        let mut color = if *input == self.io.output {
+            buffers.require(input)?;
+            buffers.remove(input).expect("required above")
+        } else {
+            buffers.require(input)?.clone()
+        };
         if color.channels() != 3 {
             return Err(Error::buffer(
                 input,
@@ -138,7 +145,7 @@ impl Stage for AtrousStage {
         };
         let albedo = if p.demodulate {
             match buffers.get_channels("albedo", 3)? {
-                Some(a) if a.dims() == color.dims() => Some(a.clone()),
+                Some(a) if a.dims() == color.dims() => Some(a),
                 Some(_) => {
                     return Err(Error::buffer(
                         "albedo",
@@ -153,12 +160,13 @@ impl Stage for AtrousStage {
         } else {
             None
         };
-        if let Some(a) = &albedo {
+        if let Some(a) = albedo {
             for (c, &a) in color.data_mut().iter_mut().zip(a.data()) {
                 *c /= a.max(0.0) + DEMODULATION_EPS;
             }
         }
-        let (mut features, off) = Features::build(&color, buffers, &p.weights, p.tone, p.exposure)?;
+        // Zero rows: checks every feature buffer's size and reports the missing ones, before any work.
+        let (_, off) = Features::build_rows(&color, buffers, &p.weights, p.tone, p.exposure, 0..0)?;
         if !off.is_empty() {
             ctx.note(format!(
                 "{}: features off (buffer missing): {}",
@@ -167,13 +175,16 @@ impl Stage for AtrousStage {
             ));
         }
         for k in 0..p.iterations {
-            // The colour feature is re-read from each pass's input: it gets cleaner every pass.
-            if k > 0 {
-                features.recolor(&color, &p.weights, p.tone, p.exposure);
-            }
-            color = atrous::pass(&color, &features, mask.as_deref(), 1 << k, p.sigma);
+            // The colour feature is read from each pass's input, which gets cleaner every pass.
+            let current = &color;
+            let bands = |rows| {
+                Features::build_rows(current, buffers, &p.weights, p.tone, p.exposure, rows)
+                    .expect("buffer sizes were checked above")
+                    .0
+            };
+            color = atrous::pass(&color, &bands, mask.as_deref(), 1 << k, p.sigma);
         }
-        if let Some(a) = &albedo {
+        if let Some(a) = albedo {
             for (c, &a) in color.data_mut().iter_mut().zip(a.data()) {
                 *c *= a.max(0.0) + DEMODULATION_EPS;
             }
