@@ -25,6 +25,20 @@ fn features<'a>(
     }
 }
 
+/// Makes every feature but albedo and colour uniform: one flat plane facing +z, fully lit, depth 1.
+fn flat_plane(set: &mut Buffers) {
+    let (w, h) = set.dims().unwrap();
+    set.insert(
+        "normal",
+        Image::from_fn(w, h, 3, |_, _, c| (c == 2) as u8 as f32),
+    )
+    .unwrap();
+    set.insert("depth", Image::from_fn(w, h, 1, |_, _, _| 1.0))
+        .unwrap();
+    set.insert("shadow", Image::from_fn(w, h, 1, |_, _, _| 1.0))
+        .unwrap();
+}
+
 #[test]
 fn both_kernels_and_any_thread_count_give_the_same_bits() {
     for (w, h) in [(1, 1), (2, 3), (23, 17), (40, 9)] {
@@ -89,15 +103,7 @@ fn averaging_stops_at_an_albedo_edge_and_smooths_within_a_surface() {
     set.insert("albedo", Image::from_vec(w, h, 3, albedo).unwrap())
         .unwrap();
     // One flat, fully lit plane: only the albedo has an edge.
-    set.insert(
-        "normal",
-        Image::from_fn(w, h, 3, |_, _, c| (c == 2) as u8 as f32),
-    )
-    .unwrap();
-    set.insert("depth", Image::from_fn(w, h, 1, |_, _, _| 1.0))
-        .unwrap();
-    set.insert("shadow", Image::from_fn(w, h, 1, |_, _, _| 1.0))
-        .unwrap();
+    flat_plane(&mut set);
     let color = Image::from_vec(w, h, 3, color).unwrap();
     set.insert("color", color.clone()).unwrap();
     let f = features(&color, &set);
@@ -207,15 +213,7 @@ fn demodulation_keeps_texture_out_of_the_average() {
         |x: usize, y: usize| 1.0 + 0.3 * (((x * 7919 + y * 104_729) % 97) as f32 / 97.0 - 0.5);
     set.insert("albedo", Image::from_fn(w, h, 3, |x, y, _| check(x, y)))
         .unwrap();
-    set.insert(
-        "normal",
-        Image::from_fn(w, h, 3, |_, _, c| (c == 2) as u8 as f32),
-    )
-    .unwrap();
-    set.insert("depth", Image::from_fn(w, h, 1, |_, _, _| 1.0))
-        .unwrap();
-    set.insert("shadow", Image::from_fn(w, h, 1, |_, _, _| 1.0))
-        .unwrap();
+    flat_plane(&mut set);
     set.insert(
         "color",
         Image::from_fn(w, h, 3, |x, y, _| 0.5 * check(x, y) * noise(x, y)),

@@ -3,7 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{parse_params, Context, Stage, StageIo};
+use super::{parse_params, read_mask, Context, Stage, StageIo};
 use crate::atrous;
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
@@ -124,25 +124,7 @@ impl Stage for AtrousStage {
                 format!("has {} channels, expected 3", color.channels()),
             ));
         }
-        let mask: Option<Vec<bool>> = match &p.mask {
-            Some(name) => match buffers.get_channels(name, 1)? {
-                Some(m) if m.dims() != color.dims() => {
-                    return Err(Error::buffer(
-                        name,
-                        "does not match the colour buffer's size",
-                    ))
-                }
-                Some(m) => Some(m.data().iter().map(|&v| v > 0.5).collect()),
-                None => {
-                    ctx.note(format!(
-                        "{}: mask buffer `{name}` not present; no pixels masked",
-                        self.id
-                    ));
-                    None
-                }
-            },
-            None => None,
-        };
+        let mask = read_mask(buffers, p.mask.as_deref(), color.dims(), ctx, &self.id)?;
         let albedo = if p.demodulate {
             match buffers.get_channels("albedo", 3)? {
                 Some(a) if a.dims() == color.dims() => Some(a),

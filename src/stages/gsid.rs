@@ -2,7 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{parse_params, Context, Stage, StageIo};
+use super::{parse_params, read_mask, Context, Stage, StageIo};
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::features::{Features, Tone, Weights};
@@ -154,18 +154,7 @@ pub fn run_gsid(
             off.join(", ")
         ));
     }
-    let mask: Option<Vec<bool>> = match &params.mask {
-        Some(name) => match buffers.get_channels(name, 1)? {
-            Some(m) => Some(m.data().iter().map(|&v| v > 0.5).collect()),
-            None => {
-                ctx.note(format!(
-                    "{label}: mask buffer `{name}` not present; no pixels masked"
-                ));
-                None
-            }
-        },
-        None => None,
-    };
+    let mask = read_mask(buffers, params.mask.as_deref(), color.dims(), ctx, label)?;
     let walk_input = WalkInput {
         color,
         features: &features,

@@ -115,6 +115,33 @@ pub fn build(kind: &str, id: &str, io: StageIo, params: toml::Table) -> Result<B
     }
 }
 
+/// The pixels a stage must avoid: buffer `name` read as one channel, > 0.5 = masked, checked to
+/// be `dims` in size. A named buffer that does not exist masks nothing, with a note under `label`.
+pub fn read_mask(
+    buffers: &Buffers,
+    name: Option<&str>,
+    dims: (usize, usize),
+    ctx: &mut Context,
+    label: &str,
+) -> Result<Option<Vec<bool>>> {
+    let Some(name) = name else {
+        return Ok(None);
+    };
+    match buffers.get_channels(name, 1)? {
+        Some(m) if m.dims() != dims => Err(Error::buffer(
+            name,
+            "does not match the colour buffer's size",
+        )),
+        Some(m) => Ok(Some(m.data().iter().map(|&v| v > 0.5).collect())),
+        None => {
+            ctx.note(format!(
+                "{label}: mask buffer `{name}` not present; no pixels masked"
+            ));
+            Ok(None)
+        }
+    }
+}
+
 /// Deserialises a parameter table into `T`, naming the stage in errors.
 pub fn parse_params<T: serde::de::DeserializeOwned>(id: &str, params: toml::Table) -> Result<T> {
     T::deserialize(toml::Value::Table(params)).map_err(|e| {
