@@ -487,10 +487,15 @@ pub fn denoise_with(
                     _ => None,
                 };
                 let mut band_steps = 0u64;
-                // Start pixels whose walks run in lockstep: enough to fill the AVX2 kernel's slots.
-                let batch = match kernel {
+                // The AVX2 kernel runs windowed walks on bands its 32-bit indices cover.
+                #[cfg(target_arch = "x86_64")]
+                let vector = kernel == Kernel::Avx2 && radius.is_some() && avx2::fits(near);
+                #[cfg(not(target_arch = "x86_64"))]
+                let vector = false;
+                // Start pixels whose walks share the AVX2 kernel's lanes.
+                let batch = match vector {
                     #[cfg(target_arch = "x86_64")]
-                    Kernel::Avx2 if radius.is_some() => avx2::batch(params.walks),
+                    true => avx2::batch(params.walks),
                     _ => 1,
                 };
                 let cells = radius.map_or(0, |r| (2 * r + 3) * (2 * r + 3));
@@ -518,10 +523,11 @@ pub fn denoise_with(
                                     );
                                     scratch.starts.push((b * cells + win.center(), win.i0));
                                 }
-                                match kernel {
+                                match vector {
                                     #[cfg(target_arch = "x86_64")]
-                                    // SAFETY: `kernel` is Avx2 only if the CPU reported AVX2 above.
-                                    Kernel::Avx2 => unsafe {
+                                    // SAFETY: `vector` holds only if the CPU reported AVX2 above
+                                    // and `fits` holds for `near`.
+                                    true => unsafe {
                                         avx2::walk_batch(
                                             input,
                                             params,
@@ -809,65 +815,49 @@ fn walk_windowed(
 mod avx2 {
     //! The windowed walk with AVX2, bit for bit equal to `super::walk_windowed`.
     //!
-    //! [`SLOTS`] walks of one start pixel advance in lockstep. For each, the pick is one register
-    //! of 8 neighbour weights (one load of the pixel's precomputed factors, two loads and two blends
-    //! for the window's, a multiply, an in-register prefix sum, a compare and a bit scan). The
-    //! scalar tail of a step (ln of the normaliser, the f64 log-probability, the exp of the weight,
-    //! the f64 colour sums) then runs once for all slots, one slot per lane. Every operation mirrors
-    //! the scalar spec (same IEEE operations in the same order), so the results are bit-identical.
+    //! Eight walks advance in lockstep, one per lane, and a step is vertical: each walk's 8
+    //! neighbour weights (its pixel's precomputed factors times its window's) are built as one
+    //! register, the 8 registers are transposed so that register k holds neighbour k of every walk,
+    //! and then the prefix sum, the pick, ln of the normaliser, the f64 log-probability, the weight
+    //! and the colour sums are each a handful of instructions for all eight walks. When a walk ends
+    //! its lane takes the next walk of the batch, which may belong to the next start pixel, so
+    //! lanes seldom idle. Every operation mirrors the scalar spec (the same IEEE operations in the
+    //! same order, the random numbers from the same integer arithmetic), so the results are
+    //! bit-identical.
 
     use std::arch::x86_64::*;
 
-    use super::{choose_log, pixel_key, uniform, walk_key, Accum, Near, LINEAR_MIN, OFFSETS};
+    use super::{choose_log, pixel_key, walk_key, Accum, Near, GAMMA, LINEAR_MIN, OFFSETS};
     use crate::fastmath::avx2::exp_neg8;
     use crate::fastmath::{LN2_HI, LN2_LO, LN_POLY};
     use crate::walk::{WalkInput, WalkParams};
 
-    /// Walks in lockstep per start pixel (a multiple of 4, the lanes of the f64 tail).
+    /// Walks in lockstep: one per f32 lane.
     const SLOTS: usize = 8;
 
-    /// `super::prefix8` on a register.
-    #[inline]
-    #[target_feature(enable = "avx2")]
-    fn prefix8(e: __m256) -> __m256 {
-        let x = _mm256_add_ps(
-            e,
-            _mm256_castsi256_ps(_mm256_slli_si256::<4>(_mm256_castps_si256(e))),
-        );
-        let x = _mm256_add_ps(
-            x,
-            _mm256_castsi256_ps(_mm256_slli_si256::<8>(_mm256_castps_si256(x))),
-        );
-        let low_total = _mm256_shuffle_ps::<0xff>(x, x);
-        _mm256_add_ps(x, _mm256_permute2f128_ps::<0x08>(low_total, low_total))
-    }
+    /// Walks per batch to aim for. Lanes idle only while a batch's last walks finish, so more
+    /// walks per batch idle less; the batch's window grids must still fit in L1.
+    const BATCH_WALKS: usize = 48;
 
-    /// `fastmath::exp_neg` on 4 lanes (the low half of the 8-lane version).
+    /// `fastmath::ln_normal` on 8 lanes.
     #[inline]
     #[target_feature(enable = "avx2")]
-    fn exp_neg4(x: __m128) -> __m128 {
-        _mm256_castps256_ps128(exp_neg8(_mm256_set_m128(_mm_setzero_ps(), x)))
-    }
-
-    /// `fastmath::ln_normal` on 4 lanes.
-    #[inline]
-    #[target_feature(enable = "avx2")]
-    fn ln_normal4(x: __m128) -> __m128 {
-        let set = _mm_set1_ps;
-        let (add, mul, sub) = (_mm_add_ps, _mm_mul_ps, _mm_sub_ps);
-        let bits = _mm_castps_si128(x);
-        let e = _mm_sub_epi32(
-            _mm_and_si128(_mm_srli_epi32::<23>(bits), _mm_set1_epi32(0xff)),
-            _mm_set1_epi32(127),
+    fn ln_normal8(x: __m256) -> __m256 {
+        let set = _mm256_set1_ps;
+        let (add, mul, sub) = (_mm256_add_ps, _mm256_mul_ps, _mm256_sub_ps);
+        let bits = _mm256_castps_si256(x);
+        let e = _mm256_sub_epi32(
+            _mm256_and_si256(_mm256_srli_epi32::<23>(bits), _mm256_set1_epi32(0xff)),
+            _mm256_set1_epi32(127),
         );
-        let m = _mm_castsi128_ps(_mm_or_si128(
-            _mm_and_si128(bits, _mm_set1_epi32(0x007f_ffff)),
-            _mm_set1_epi32(0x3f80_0000),
+        let m = _mm256_castsi256_ps(_mm256_or_si256(
+            _mm256_and_si256(bits, _mm256_set1_epi32(0x007f_ffff)),
+            _mm256_set1_epi32(0x3f80_0000),
         ));
-        let big = _mm_cmp_ps::<_CMP_GT_OQ>(m, set(std::f32::consts::SQRT_2));
-        let m = _mm_blendv_ps(m, mul(m, set(0.5)), big);
+        let big = _mm256_cmp_ps::<_CMP_GT_OQ>(m, set(std::f32::consts::SQRT_2));
+        let m = _mm256_blendv_ps(m, mul(m, set(0.5)), big);
         // `big` lanes are all ones, i.e. −1: subtracting adds 1 to the exponent.
-        let e = _mm_sub_epi32(e, _mm_castps_si128(big));
+        let e = _mm256_sub_epi32(e, _mm256_castps_si256(big));
         let f = sub(m, set(1.0));
         let z = mul(f, f);
         let f4 = mul(z, z);
@@ -878,7 +868,7 @@ mod avx2 {
             mul(add(lin(c5, c4), mul(lin(c7, c6), z)), f4),
         );
         let y = add(y, mul(set(c8), mul(f4, f4)));
-        let ef = _mm_cvtepi32_ps(e);
+        let ef = _mm256_cvtepi32_ps(e);
         let y = sub(
             add(mul(mul(y, f), z), mul(ef, set(LN2_LO))),
             mul(set(0.5), z),
@@ -886,67 +876,139 @@ mod avx2 {
         add(add(f, y), mul(ef, set(LN2_HI)))
     }
 
-    /// The window values of cell g's 8 neighbours, in lane order: three above, left, right, three below.
+    /// The low 64 bits of z · c per u64 lane (AVX2 has no 64-bit multiply).
     #[inline]
     #[target_feature(enable = "avx2")]
-    fn window_block(grid: &[f32], g: usize, side: usize) -> __m256 {
-        let above = &grid[g - side - 1..g - side + 3];
-        let below = &grid[g + side - 2..g + side + 2];
-        // SAFETY: both slices hold 4 floats (bounds-checked above); loads are unaligned.
-        let (above, below) =
-            unsafe { (_mm_loadu_ps(above.as_ptr()), _mm_loadu_ps(below.as_ptr())) };
-        let lo = _mm_blend_ps::<0b1000>(above, _mm_set1_ps(grid[g - 1]));
-        let hi = _mm_blend_ps::<0b0001>(below, _mm_set1_ps(grid[g + 1]));
+    fn mul64(z: __m256i, c: u64) -> __m256i {
+        let (c_lo, c_hi) = (
+            _mm256_set1_epi64x((c & 0xffff_ffff) as i64),
+            _mm256_set1_epi64x((c >> 32) as i64),
+        );
+        let cross = _mm256_add_epi64(
+            _mm256_mul_epu32(_mm256_srli_epi64::<32>(z), c_lo),
+            _mm256_mul_epu32(z, c_hi),
+        );
+        _mm256_add_epi64(_mm256_mul_epu32(z, c_lo), _mm256_slli_epi64::<32>(cross))
+    }
+
+    /// `super::splitmix` after its increment, cut to the top 24 bits, per u64 lane.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn mix24(z: __m256i) -> __m256i {
+        let z = mul64(
+            _mm256_xor_si256(z, _mm256_srli_epi64::<30>(z)),
+            0xbf58_476d_1ce4_e5b9,
+        );
+        let z = mul64(
+            _mm256_xor_si256(z, _mm256_srli_epi64::<27>(z)),
+            0x94d0_49bb_1331_11eb,
+        );
+        _mm256_srli_epi64::<40>(_mm256_xor_si256(z, _mm256_srli_epi64::<31>(z)))
+    }
+
+    /// `super::uniform` for 8 walks whose streams stand at `ctr` (key + (step + 2)·GAMMA: the
+    /// draw's counter with splitmix's own increment already added), lanes 0–3 then 4–7.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn uniform8(ctr: [__m256i; 2]) -> __m256 {
+        let even = _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6);
+        let lo = _mm256_permutevar8x32_epi32(mix24(ctr[0]), even);
+        let hi = _mm256_permutevar8x32_epi32(mix24(ctr[1]), even);
+        let bits = _mm256_permute2x128_si256::<0x20>(lo, hi);
+        // Values below 2^24 convert exactly, as the scalar u64 → f32 cast does.
+        _mm256_mul_ps(_mm256_cvtepi32_ps(bits), _mm256_set1_ps(1.0 / 16_777_216.0))
+    }
+
+    /// The window factors of cell g's 8 neighbours, in lane order: three above, left, right,
+    /// three below.
+    ///
+    /// # Safety
+    /// Cells g ± (side + 1) must lie inside the grid at `grid`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn window_block(grid: *const f32, g: usize, side: usize) -> __m256 {
+        let above = _mm_loadu_ps(grid.add(g - side - 1));
+        let below = _mm_loadu_ps(grid.add(g + side - 2));
+        let lo = _mm_blend_ps::<0b1000>(above, _mm_broadcast_ss(&*grid.add(g - 1)));
+        let hi = _mm_blend_ps::<0b0001>(below, _mm_broadcast_ss(&*grid.add(g + 1)));
         _mm256_set_m128(hi, lo)
     }
 
-    /// The pick of one step: lane `k`, and `x`, `sum` with log-probability x − ln(sum).
-    struct Pick {
-        k: usize,
-        x: f32,
-        sum: f32,
-    }
-
-    /// `super::choose` for the walk at grid cell g, pixel i, with draw u; `None` ends the walk.
+    /// Transposes 8 registers of 8 lanes: lane s of the result's register k is lane k of r[s].
     #[inline]
     #[target_feature(enable = "avx2")]
-    fn pick(
-        near: &Near,
-        win: &Batch,
-        goff: &[isize; 8],
-        g: usize,
-        i: usize,
-        u: f32,
-    ) -> Option<Pick> {
-        // SAFETY: a Near row is 8 floats; unaligned load.
-        let e = unsafe { _mm256_loadu_ps(near.lin(i).as_ptr()) };
-        let l = _mm256_mul_ps(window_block(win.egrid, g, win.side), e);
-        let c = prefix8(l);
-        let sum = _mm256_cvtss_f32(_mm256_permutevar8x32_ps(c, _mm256_set1_epi32(7)));
-        if sum >= LINEAR_MIN {
-            let target = _mm256_set1_ps(u * sum);
-            let bits = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(target, c));
-            let k = if bits != 0 {
-                bits.trailing_zeros() as usize
-            } else {
-                let nonzero =
-                    _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(l, _mm256_setzero_ps()));
-                31 - nonzero.leading_zeros() as usize
-            };
-            let x = win.grid[(g as isize + goff[k]) as usize] + near.log(i)[k];
-            return Some(Pick { k, x, sum });
-        }
-        let t = near.log(i);
-        let mut a = [0.0f32; 8];
-        for k in 0..8 {
-            a[k] = win.grid[(g as isize + goff[k]) as usize] + t[k];
-        }
-        choose_log(&a, u).map(|(k, x, sum)| Pick { k, x, sum })
+    fn transpose8(r: [__m256; 8]) -> [__m256; 8] {
+        let t0 = _mm256_unpacklo_ps(r[0], r[1]);
+        let t1 = _mm256_unpackhi_ps(r[0], r[1]);
+        let t2 = _mm256_unpacklo_ps(r[2], r[3]);
+        let t3 = _mm256_unpackhi_ps(r[2], r[3]);
+        let t4 = _mm256_unpacklo_ps(r[4], r[5]);
+        let t5 = _mm256_unpackhi_ps(r[4], r[5]);
+        let t6 = _mm256_unpacklo_ps(r[6], r[7]);
+        let t7 = _mm256_unpackhi_ps(r[6], r[7]);
+        let u0 = _mm256_shuffle_ps::<0x44>(t0, t2);
+        let u1 = _mm256_shuffle_ps::<0xee>(t0, t2);
+        let u2 = _mm256_shuffle_ps::<0x44>(t1, t3);
+        let u3 = _mm256_shuffle_ps::<0xee>(t1, t3);
+        let u4 = _mm256_shuffle_ps::<0x44>(t4, t6);
+        let u5 = _mm256_shuffle_ps::<0xee>(t4, t6);
+        let u6 = _mm256_shuffle_ps::<0x44>(t5, t7);
+        let u7 = _mm256_shuffle_ps::<0xee>(t5, t7);
+        [
+            _mm256_permute2f128_ps::<0x20>(u0, u4),
+            _mm256_permute2f128_ps::<0x20>(u1, u5),
+            _mm256_permute2f128_ps::<0x20>(u2, u6),
+            _mm256_permute2f128_ps::<0x20>(u3, u7),
+            _mm256_permute2f128_ps::<0x31>(u0, u4),
+            _mm256_permute2f128_ps::<0x31>(u1, u5),
+            _mm256_permute2f128_ps::<0x31>(u2, u6),
+            _mm256_permute2f128_ps::<0x31>(u3, u7),
+        ]
     }
 
-    /// Start pixels per call of [`walk_batch`] for `walks` walks each: enough walks to fill the slots.
+    /// The 8-lane mask vector of the low 8 bits of `bits`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn lanes(bits: i32) -> __m256i {
+        let sel = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+        _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(bits), sel), sel)
+    }
+
+    /// A 32-bit lane mask widened to two f64 masks (lanes 0–3, lanes 4–7).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn widen(m: __m256i) -> [__m256d; 2] {
+        [
+            _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm256_castsi256_si128(m))),
+            _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm256_extracti128_si256::<1>(m))),
+        ]
+    }
+
+    /// f32 lanes 0–3 and 4–7 as f64.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn to_f64(x: __m256) -> [__m256d; 2] {
+        [
+            _mm256_cvtps_pd(_mm256_castps256_ps128(x)),
+            _mm256_cvtps_pd(_mm256_extractf128_ps::<1>(x)),
+        ]
+    }
+
+    /// acc + x where `m` is set, acc elsewhere.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn add_where(acc: __m256d, x: __m256d, m: __m256d) -> __m256d {
+        _mm256_blendv_pd(acc, _mm256_add_pd(acc, x), m)
+    }
+
+    /// Start pixels per call of [`walk_batch`] for `walks` walks each.
     pub(super) fn batch(walks: u32) -> usize {
-        SLOTS.div_ceil(walks.max(1) as usize).max(1)
+        BATCH_WALKS.div_ceil(walks.max(1) as usize).max(1)
+    }
+
+    /// Whether [`walk_batch`]'s 32-bit indices reach every entry of the band's tables.
+    pub(super) fn fits(near: &Near) -> bool {
+        near.lin.len() * 8 <= i32::MAX as usize
     }
 
     /// The window grids of a batch of start pixels, in one buffer.
@@ -958,12 +1020,24 @@ mod avx2 {
         pub starts: &'a [(usize, usize)],
     }
 
+    /// Per-lane state of the walks in flight, in memory between the vector parts of a step.
+    struct Lanes {
+        job: [usize; SLOTS],
+        cell: [i32; SLOTS],
+        pixel: [i32; SLOTS],
+        step: [i32; SLOTS],
+        ctr: [u64; SLOTS],
+        log_p: [f64; SLOTS],
+        sum: [[f64; SLOTS]; 3],
+        weight: [f64; SLOTS],
+    }
+
     /// `super::walk_windowed` for every start pixel of `win`, bit for bit, their walks sharing the
-    /// slots (so few walks per pixel still fill a register). `parts` is scratch space for the walks'
-    /// sums; `accs[b]` receives start pixel b's result. Returns the steps taken.
+    /// lanes. `parts` is scratch space for the walks' sums; `accs[b]` receives start pixel b's
+    /// result. Returns the steps taken.
     ///
     /// # Safety
-    /// The CPU must support AVX2.
+    /// The CPU must support AVX2, and [`fits`] must hold for `near`.
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn walk_batch(
         input: &WalkInput,
@@ -974,125 +1048,281 @@ mod avx2 {
         accs: &mut [Accum],
     ) -> u64 {
         let w = input.color.width();
-        let goff: [isize; 8] = OFFSETS.map(|(dx, dy)| dy * win.side as isize + dx);
-        let ioff: [isize; 8] = OFFSETS.map(|(dx, dy)| dy * w as isize + dx);
+        let side = win.side;
+        let goff = _mm256_setr_epi32(
+            OFFSETS[0].1 as i32 * side as i32 + OFFSETS[0].0 as i32,
+            OFFSETS[1].1 as i32 * side as i32 + OFFSETS[1].0 as i32,
+            OFFSETS[2].1 as i32 * side as i32 + OFFSETS[2].0 as i32,
+            OFFSETS[3].1 as i32 * side as i32 + OFFSETS[3].0 as i32,
+            OFFSETS[4].1 as i32 * side as i32 + OFFSETS[4].0 as i32,
+            OFFSETS[5].1 as i32 * side as i32 + OFFSETS[5].0 as i32,
+            OFFSETS[6].1 as i32 * side as i32 + OFFSETS[6].0 as i32,
+            OFFSETS[7].1 as i32 * side as i32 + OFFSETS[7].0 as i32,
+        );
+        let ioff = _mm256_setr_epi32(
+            OFFSETS[0].1 as i32 * w as i32 + OFFSETS[0].0 as i32,
+            OFFSETS[1].1 as i32 * w as i32 + OFFSETS[1].0 as i32,
+            OFFSETS[2].1 as i32 * w as i32 + OFFSETS[2].0 as i32,
+            OFFSETS[3].1 as i32 * w as i32 + OFFSETS[3].0 as i32,
+            OFFSETS[4].1 as i32 * w as i32 + OFFSETS[4].0 as i32,
+            OFFSETS[5].1 as i32 * w as i32 + OFFSETS[5].0 as i32,
+            OFFSETS[6].1 as i32 * w as i32 + OFFSETS[6].0 as i32,
+            OFFSETS[7].1 as i32 * w as i32 + OFFSETS[7].0 as i32,
+        );
+        let goff_arr: [isize; 8] = OFFSETS.map(|(dx, dy)| dy * side as isize + dx);
         let ln_pmin = _mm256_set1_pd(params.p_min.ln());
         let walks = params.walks as usize;
         let total = walks * win.starts.len();
-        let pkeys: [u64; SLOTS] = std::array::from_fn(|b| {
-            win.starts
-                .get(b)
-                .map_or(0, |&(_, i0)| pixel_key(input.seed, input.level, i0))
-        });
         parts.clear();
         parts.resize(total, Accum::default());
+        if total == 0 {
+            return 0;
+        }
+        // Pixel indices are relative to the band's first row, so they fit in 32 bits.
+        let base = near.base;
+        let lin = near.lin.as_ptr().cast::<f32>();
+        let log = near.log.as_ptr().cast::<f32>();
+        let color = input.color.data()[3 * base..].as_ptr();
+        let (grid, egrid) = (win.grid.as_ptr(), win.egrid.as_ptr());
 
-        // Slot state, one lane each; job j is walk j % walks of start pixel j / walks.
-        let mut job = [0usize; SLOTS];
-        let mut key = [0u64; SLOTS];
-        let mut g = [0usize; SLOTS];
-        let mut i = [0usize; SLOTS];
-        let mut step = [0i32; SLOTS];
-        let mut live = [false; SLOTS];
-        let mut log_p = [0.0f64; SLOTS];
-        let mut sum = [[0.0f64; SLOTS]; 3];
-        let mut weight = [0.0f64; SLOTS];
-
-        // Slots beyond the walk count would only add idle lanes to every round.
-        let slots = total.min(SLOTS).div_ceil(4) * 4;
+        let two_gamma = GAMMA.wrapping_mul(2);
         let start = |j: usize| {
             let (cell, i0) = win.starts[j / walks];
-            (cell, i0, walk_key(pkeys[j / walks], (j % walks) as u32))
+            let key = walk_key(pixel_key(input.seed, input.level, i0), (j % walks) as u32);
+            (cell as i32, (i0 - base) as i32, key.wrapping_add(two_gamma))
         };
+        let mut st = Lanes {
+            job: [0; SLOTS],
+            cell: [0; SLOTS],
+            pixel: [0; SLOTS],
+            step: [0; SLOTS],
+            ctr: [0; SLOTS],
+            log_p: [0.0; SLOTS],
+            sum: [[0.0; SLOTS]; 3],
+            weight: [0.0; SLOTS],
+        };
+        // Lanes without a walk sit on the first walk's start cell, so their loads stay in bounds.
+        let mut live = 0i32;
         let mut next = 0usize;
-        for s in 0..slots {
+        for s in 0..SLOTS {
+            let j = next.min(total - 1);
+            (st.cell[s], st.pixel[s], st.ctr[s]) = start(j);
             if next < total {
-                (g[s], i[s], key[s]) = start(next);
-                (job[s], live[s]) = (next, true);
+                st.job[s] = next;
+                live |= 1 << s;
                 next += 1;
             }
         }
         let mut steps = 0u64;
-        let max_steps = params.max_steps.min(i32::MAX as u32) as i32;
-        let color = input.color.data();
-        while live.iter().any(|&l| l) {
-            // The picks, slot by slot; a slot that cannot step gets (x, sum) = (0, 1) and is ended below.
-            let mut going = [false; SLOTS];
-            let mut ks = [0usize; SLOTS];
-            let mut xs = [0.0f32; SLOTS];
-            let mut sums = [1.0f32; SLOTS];
-            for s in 0..slots {
-                if !live[s] || step[s] >= max_steps {
-                    continue;
-                }
-                let u = uniform(key[s], step[s] as u32 + 1);
-                if let Some(p) = pick(near, &win, &goff, g[s], i[s], u) {
-                    (going[s], ks[s], xs[s], sums[s]) = (true, p.k, p.x, p.sum);
-                }
+        let max_steps = _mm256_set1_epi32(params.max_steps.min(i32::MAX as u32) as i32);
+        let load_i = |a: &[i32; SLOTS]| _mm256_loadu_si256(a.as_ptr().cast());
+        let load_d = |a: &[f64; SLOTS], h: usize| _mm256_loadu_pd(a[4 * h..].as_ptr());
+        let mut cell = load_i(&st.cell);
+        let mut pixel = load_i(&st.pixel);
+        let mut step = load_i(&st.step);
+        let mut ctr = [
+            _mm256_loadu_si256(st.ctr.as_ptr().cast()),
+            _mm256_loadu_si256(st.ctr[4..].as_ptr().cast()),
+        ];
+        let mut log_p = [load_d(&st.log_p, 0), load_d(&st.log_p, 1)];
+        let mut sum = [[_mm256_setzero_pd(); 2]; 3];
+        let mut weight = [_mm256_setzero_pd(); 2];
+        while live != 0 {
+            let u = uniform8(ctr);
+            // Each walk's 8 neighbour weights, one register per walk, then one per neighbour.
+            _mm256_storeu_si256(st.cell.as_mut_ptr().cast(), cell);
+            _mm256_storeu_si256(st.pixel.as_mut_ptr().cast(), pixel);
+            let rows: [__m256; 8] = std::array::from_fn(|s| {
+                let e = _mm256_loadu_ps(lin.add(8 * st.pixel[s] as usize));
+                _mm256_mul_ps(window_block(egrid, st.cell[s] as usize, side), e)
+            });
+            let l = transpose8(rows);
+            // `super::prefix8`, vertically.
+            let c3 = _mm256_add_ps(_mm256_add_ps(l[3], l[2]), _mm256_add_ps(l[1], l[0]));
+            let h7 = _mm256_add_ps(_mm256_add_ps(l[7], l[6]), _mm256_add_ps(l[5], l[4]));
+            let c = [
+                l[0],
+                _mm256_add_ps(l[1], l[0]),
+                _mm256_add_ps(_mm256_add_ps(l[2], l[1]), l[0]),
+                c3,
+                _mm256_add_ps(l[4], c3),
+                _mm256_add_ps(_mm256_add_ps(l[5], l[4]), c3),
+                _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(l[6], l[5]), l[4]), c3),
+                _mm256_add_ps(h7, c3),
+            ];
+            let mut total_w = c[7];
+            let target = _mm256_mul_ps(u, total_w);
+            // The first lane whose cumulative weight exceeds the target: count the leading misses.
+            let mut k = _mm256_setzero_si256();
+            let mut run = _mm256_set1_epi32(-1);
+            for ck in c {
+                let hit = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LT_OQ>(target, ck));
+                run = _mm256_andnot_si256(hit, run);
+                k = _mm256_sub_epi32(k, run);
             }
-            // The tail, four slots per register: log-probability, stop test, weight, colour sums.
-            for o in (0..slots).step_by(4) {
-                let q = o..o + 4;
-                let lp = _mm_sub_ps(
-                    _mm_loadu_ps(xs[q.clone()].as_ptr()),
-                    ln_normal4(_mm_loadu_ps(sums[q.clone()].as_ptr())),
-                );
-                let old_log_p = _mm256_loadu_pd(log_p[q.clone()].as_ptr());
-                let new_log_p = _mm256_add_pd(old_log_p, _mm256_cvtps_pd(lp));
-                let above = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_NLT_UQ>(new_log_p, ln_pmin));
-                let mut moved = [0.0f64; 4];
-                for (lane, s) in q.clone().enumerate() {
-                    going[s] &= above & (1 << lane) != 0;
-                    if going[s] {
-                        g[s] = (g[s] as isize + goff[ks[s]]) as usize;
-                        i[s] = (i[s] as isize + ioff[ks[s]]) as usize;
-                        step[s] += 1;
-                        moved[lane] = f64::from_bits(u64::MAX);
+            let cand =
+                _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(max_steps, step))) & live;
+            let linear = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GE_OQ>(
+                total_w,
+                _mm256_set1_ps(LINEAR_MIN),
+            )) & cand;
+            let missed = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
+                k,
+                _mm256_set1_epi32(8),
+            ))) & linear;
+            if missed != 0 {
+                // Rounding put the target at the very top: take the last lane with weight.
+                let mut last = _mm256_setzero_si256();
+                for (lane, lk) in l.iter().enumerate() {
+                    let has =
+                        _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GT_OQ>(*lk, _mm256_setzero_ps()));
+                    last = _mm256_blendv_epi8(last, _mm256_set1_epi32(lane as i32), has);
+                }
+                k = _mm256_blendv_epi8(k, last, lanes(missed));
+            }
+            let k_safe = _mm256_min_epi32(k, _mm256_set1_epi32(7));
+            let at = _mm256_add_epi32(_mm256_slli_epi32::<3>(pixel), k_safe);
+            let to_cell = _mm256_add_epi32(cell, _mm256_permutevar8x32_epi32(goff, k_safe));
+            let mut x = _mm256_add_ps(
+                _mm256_i32gather_ps::<4>(grid, to_cell),
+                _mm256_i32gather_ps::<4>(log, at),
+            );
+            let mut picked = linear;
+            let fallback = cand & !linear;
+            if fallback != 0 {
+                // Weights near underflow: these walks pick in the log domain, one at a time.
+                let mut ks = [0i32; SLOTS];
+                let (mut xs, mut sums, mut us) = ([0f32; SLOTS], [0f32; SLOTS], [0f32; SLOTS]);
+                _mm256_storeu_si256(ks.as_mut_ptr().cast(), k_safe);
+                _mm256_storeu_ps(xs.as_mut_ptr(), x);
+                _mm256_storeu_ps(sums.as_mut_ptr(), total_w);
+                _mm256_storeu_ps(us.as_mut_ptr(), u);
+                for s in 0..SLOTS {
+                    if fallback & (1 << s) == 0 {
+                        continue;
+                    }
+                    let (g, i) = (st.cell[s] as isize, st.pixel[s] as usize);
+                    let t = near.log[i];
+                    let a: [f32; 8] =
+                        std::array::from_fn(|n| win.grid[(g + goff_arr[n]) as usize] + t[n]);
+                    if let Some((kk, xx, ss)) = choose_log(&a, us[s]) {
+                        (ks[s], xs[s], sums[s]) = (kk as i32, xx, ss);
+                        picked |= 1 << s;
                     }
                 }
-                let moved = _mm256_loadu_pd(moved.as_ptr());
-                let step_pd = _mm256_cvtepi32_pd(_mm_loadu_si128(step[q.clone()].as_ptr().cast()));
-                let wgt =
-                    _mm256_cvtps_pd(exp_neg4(_mm256_cvtpd_ps(_mm256_div_pd(new_log_p, step_pd))));
-                let wgt = _mm256_and_pd(wgt, moved);
-                for c in 0..3 {
-                    let px = |lane: usize| color[3 * i[o + lane] + c] as f64;
-                    let col = _mm256_set_pd(px(3), px(2), px(1), px(0));
-                    let acc = _mm256_loadu_pd(sum[c][q.clone()].as_ptr());
-                    let acc =
-                        _mm256_blendv_pd(acc, _mm256_add_pd(acc, _mm256_mul_pd(wgt, col)), moved);
-                    _mm256_storeu_pd(sum[c][q.clone()].as_mut_ptr(), acc);
-                }
-                let wsum = _mm256_loadu_pd(weight[q.clone()].as_ptr());
-                _mm256_storeu_pd(
-                    weight[q.clone()].as_mut_ptr(),
-                    _mm256_blendv_pd(wsum, _mm256_add_pd(wsum, wgt), moved),
-                );
-                _mm256_storeu_pd(
-                    log_p[q.clone()].as_mut_ptr(),
-                    _mm256_blendv_pd(old_log_p, new_log_p, moved),
+                k = _mm256_loadu_si256(ks.as_ptr().cast());
+                x = _mm256_loadu_ps(xs.as_ptr());
+                total_w = _mm256_loadu_ps(sums.as_ptr());
+            } else {
+                k = k_safe;
+            }
+            // Walks that cannot step get (x, sum) = (0, 1): finite, and masked below.
+            let picked_v = lanes(picked);
+            let picked_f = _mm256_castsi256_ps(picked_v);
+            x = _mm256_and_ps(x, picked_f);
+            total_w = _mm256_blendv_ps(_mm256_set1_ps(1.0), total_w, picked_f);
+            let lp = to_f64(_mm256_sub_ps(x, ln_normal8(total_w)));
+            let new_log_p = [
+                _mm256_add_pd(log_p[0], lp[0]),
+                _mm256_add_pd(log_p[1], lp[1]),
+            ];
+            let above = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_NLT_UQ>(new_log_p[0], ln_pmin))
+                | _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_NLT_UQ>(new_log_p[1], ln_pmin)) << 4;
+            let going = picked & above;
+            let going_v = lanes(going);
+            let moved = widen(going_v);
+            // Picked walks move (a walk that stops now is replaced below, wherever it stands).
+            cell = _mm256_blendv_epi8(
+                cell,
+                _mm256_add_epi32(cell, _mm256_permutevar8x32_epi32(goff, k)),
+                picked_v,
+            );
+            pixel = _mm256_blendv_epi8(
+                pixel,
+                _mm256_add_epi32(pixel, _mm256_permutevar8x32_epi32(ioff, k)),
+                picked_v,
+            );
+            step = _mm256_sub_epi32(step, going_v);
+            let gamma = _mm256_set1_epi64x(GAMMA as i64);
+            for h in 0..2 {
+                ctr[h] = _mm256_add_epi64(
+                    ctr[h],
+                    _mm256_and_si256(gamma, _mm256_castpd_si256(moved[h])),
                 );
             }
-            // Ended walks hand in their sums; their slot takes the next walk.
-            for s in 0..slots {
-                if !live[s] || going[s] {
-                    continue;
+            // The weight exp(L_k / k), in f32 as the spec rounds it.
+            let step_pd = [
+                _mm256_cvtepi32_pd(_mm256_castsi256_si128(step)),
+                _mm256_cvtepi32_pd(_mm256_extracti128_si256::<1>(step)),
+            ];
+            let ratio = _mm256_set_m128(
+                _mm256_cvtpd_ps(_mm256_div_pd(new_log_p[1], step_pd[1])),
+                _mm256_cvtpd_ps(_mm256_div_pd(new_log_p[0], step_pd[0])),
+            );
+            let wgt = to_f64(exp_neg8(ratio));
+            let wgt = [
+                _mm256_and_pd(wgt[0], moved[0]),
+                _mm256_and_pd(wgt[1], moved[1]),
+            ];
+            let at3 = _mm256_mullo_epi32(pixel, _mm256_set1_epi32(3));
+            for (ch, acc) in sum.iter_mut().enumerate() {
+                let col = to_f64(_mm256_i32gather_ps::<4>(
+                    color.add(ch),
+                    _mm256_blendv_epi8(_mm256_setzero_si256(), at3, going_v),
+                ));
+                for h in 0..2 {
+                    acc[h] = add_where(acc[h], _mm256_mul_pd(wgt[h], col[h]), moved[h]);
                 }
-                steps += step[s] as u64;
-                parts[job[s]] = Accum {
-                    sum: [sum[0][s], sum[1][s], sum[2][s]],
-                    weight: weight[s],
-                };
-                (step[s], log_p[s], weight[s]) = (0, 0.0, 0.0);
-                for c in 0..3 {
-                    sum[c][s] = 0.0;
+            }
+            for h in 0..2 {
+                weight[h] = add_where(weight[h], wgt[h], moved[h]);
+                log_p[h] = _mm256_blendv_pd(log_p[h], new_log_p[h], moved[h]);
+            }
+            // Ended walks hand in their sums; their lane takes the next walk.
+            let ended = live & !going;
+            if ended != 0 {
+                _mm256_storeu_si256(st.cell.as_mut_ptr().cast(), cell);
+                _mm256_storeu_si256(st.pixel.as_mut_ptr().cast(), pixel);
+                _mm256_storeu_si256(st.step.as_mut_ptr().cast(), step);
+                for h in 0..2 {
+                    _mm256_storeu_si256(st.ctr[4 * h..].as_mut_ptr().cast(), ctr[h]);
+                    _mm256_storeu_pd(st.log_p[4 * h..].as_mut_ptr(), log_p[h]);
+                    _mm256_storeu_pd(st.weight[4 * h..].as_mut_ptr(), weight[h]);
+                    for ch in 0..3 {
+                        _mm256_storeu_pd(st.sum[ch][4 * h..].as_mut_ptr(), sum[ch][h]);
+                    }
                 }
-                if next < total {
-                    (g[s], i[s], key[s]) = start(next);
-                    job[s] = next;
-                    next += 1;
-                } else {
-                    live[s] = false;
+                for s in 0..SLOTS {
+                    if ended & (1 << s) == 0 {
+                        continue;
+                    }
+                    steps += st.step[s] as u64;
+                    parts[st.job[s]] = Accum {
+                        sum: [st.sum[0][s], st.sum[1][s], st.sum[2][s]],
+                        weight: st.weight[s],
+                    };
+                    (st.step[s], st.log_p[s], st.weight[s]) = (0, 0.0, 0.0);
+                    for ch in 0..3 {
+                        st.sum[ch][s] = 0.0;
+                    }
+                    if next < total {
+                        (st.cell[s], st.pixel[s], st.ctr[s]) = start(next);
+                        st.job[s] = next;
+                        next += 1;
+                    } else {
+                        live &= !(1 << s);
+                    }
+                }
+                cell = load_i(&st.cell);
+                pixel = load_i(&st.pixel);
+                step = load_i(&st.step);
+                for h in 0..2 {
+                    ctr[h] = _mm256_loadu_si256(st.ctr[4 * h..].as_ptr().cast());
+                    log_p[h] = load_d(&st.log_p, h);
+                    weight[h] = load_d(&st.weight, h);
+                    for ch in 0..3 {
+                        sum[ch][h] = load_d(&st.sum[ch], h);
+                    }
                 }
             }
         }

@@ -161,7 +161,8 @@ proptest! {
 }
 
 /// The portable and the AVX2 step (where the CPU has it) give the reference's bits, also when tiny
-/// σ sends every step through the log-domain fallback and when a large σ never does.
+/// σ sends every step through the log-domain fallback, when a large σ never does, and when the
+/// step cap ends walks.
 #[test]
 fn every_kernel_equals_the_reference() {
     let set = synthetic_set(29, 13);
@@ -169,12 +170,13 @@ fn every_kernel_equals_the_reference() {
     let (features, _) =
         Features::build(color, &set, &Weights::default(), Tone::Reinhard, 1.0).unwrap();
     let mask: Vec<bool> = (0..29 * 13).map(|i| i % 7 == 3).collect();
-    for sigma in [1e-3, 0.05, 1.0, 50.0] {
+    for (sigma, max_steps) in [(1e-3, 64), (0.05, 64), (1.0, 64), (50.0, 64), (50.0, 3)] {
         for window in [Some(2), Some(5)] {
             let params = WalkParams {
                 sigma,
                 walks: 7,
                 window,
+                max_steps,
                 ..WalkParams::default()
             };
             let input = WalkInput {
@@ -187,12 +189,9 @@ fn every_kernel_equals_the_reference() {
             let (want, want_stats) = denoise_reference(&input, &params);
             for kernel in [Kernel::Scalar, Kernel::Avx2] {
                 let (got, stats) = denoise_with(kernel, &input, &params, &|| {});
-                assert_eq!(stats, want_stats, "{kernel:?} σ {sigma} window {window:?}");
-                assert_eq!(
-                    bits(&got),
-                    bits(&want),
-                    "{kernel:?} σ {sigma} window {window:?}"
-                );
+                let case = format!("{kernel:?} σ {sigma} cap {max_steps} window {window:?}");
+                assert_eq!(stats, want_stats, "{case}");
+                assert_eq!(bits(&got), bits(&want), "{case}");
             }
         }
     }
