@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Scaling and memory of `gsid denoise` on render sets tiled from a fixture (ALGORITHM.md §5 targets):
 #   - time per pixel at 1 MP and 4 MP (median of RUNS whole-process runs, all threads);
-#   - 1 thread against 2 threads at 1 MP;
+#   - 1 thread against 2 threads at 1 MP (runs alternate; medians);
 #   - peak resident memory (/usr/bin/time -v) at 4 MP, against the in-memory f32 size of the input buffers.
 # Usage: scripts/scaling.sh [PIPELINE] [RUNS] [FIXTURE_SET]   (defaults: balanced 5 fixtures/mitsuba-cornell/spp4)
 set -euo pipefail
@@ -28,10 +28,25 @@ timed() {
   done | median
 }
 
+# 1 against 2 threads: runs alternate, so a change in the machine's load (other tenants) falls on
+# both medians alike rather than on whichever ran second.
+threads_pair() {
+  for _ in $(seq "$runs"); do
+    for n in 1 2; do
+      local start end
+      start=$(date +%s.%N)
+      target/release/gsid denoise "$work/1mp" --pipeline "$pipeline" -o "$work/out.exr" --quiet --threads "$n"
+      end=$(date +%s.%N)
+      echo "$n $(echo "$end - $start" | bc -l)"
+    done
+  done >"$work/pairs"
+}
+
 t1=$(timed "$work/1mp")
 t4=$(timed "$work/4mp")
-t1_one=$(timed "$work/1mp" --threads 1)
-t1_two=$(timed "$work/1mp" --threads 2)
+threads_pair
+t1_one=$(awk '$1 == 1 {print $2}' "$work/pairs" | median)
+t1_two=$(awk '$1 == 2 {print $2}' "$work/pairs" | median)
 printf 'pipeline %s, %s, %d cores, median of %d runs\n' "$pipeline" "$src" "$(nproc)" "$runs"
 printf '  1 MP (1024x1024): %.3f s = %.1f ns/pixel\n' "$t1" "$(echo "$t1 * 1000000000 / 1048576" | bc -l)"
 printf '  4 MP (2048x2048): %.3f s = %.1f ns/pixel (%.2fx the 1 MP time per pixel)\n' \

@@ -188,6 +188,11 @@ fn same_file(a: &Path, b: &Path) -> bool {
 }
 
 fn denoise(args: &DenoiseArgs, quiet: bool) -> Result<()> {
+    // Reading and writing run on the same pool as the pipeline, so `--threads` bounds the whole job.
+    args.run.in_pool(|| denoise_in_pool(args, quiet))?
+}
+
+fn denoise_in_pool(args: &DenoiseArgs, quiet: bool) -> Result<()> {
     let start = Instant::now();
     let pipeline = args.run.spec()?.build()?;
     let mut saves = Vec::new();
@@ -218,11 +223,10 @@ fn denoise(args: &DenoiseArgs, quiet: bool) -> Result<()> {
             eprintln!("gsid: {line}");
         }
     }
+    let read_seconds = start.elapsed().as_secs_f64();
     let (w, h) = set.buffers.dims().unwrap_or((0, 0));
-    let seed = args.run.seed;
-    let (out, report) = args
-        .run
-        .in_pool(|| pipeline.run(&mut set.buffers, seed, !quiet))??;
+    let (out, report) = pipeline.run(&mut set.buffers, args.run.seed, !quiet)?;
+    let write_start = Instant::now();
     for (name, pending) in pending_saves {
         let buf = set.buffers.get(&name).ok_or_else(|| {
             Error::buffer(
@@ -236,11 +240,13 @@ fn denoise(args: &DenoiseArgs, quiet: bool) -> Result<()> {
         pending.write_exr(buf, io::Compression::Rle)?;
     }
     pending.write_exr(&out, io::Compression::Rle)?;
+    let write_seconds = write_start.elapsed().as_secs_f64();
     if !quiet {
         for line in &report.notes {
             eprintln!("gsid: {line}");
         }
         if args.timings {
+            eprintln!("gsid:   {:<12}         {read_seconds:>8.4} s", "read");
             for st in &report.stages {
                 eprintln!(
                     "gsid:   {:<12} level {} {:>8.4} s {:>6.2} M walk steps",
@@ -250,6 +256,7 @@ fn denoise(args: &DenoiseArgs, quiet: bool) -> Result<()> {
                     st.walk_steps as f64 / 1e6
                 );
             }
+            eprintln!("gsid:   {:<12}         {write_seconds:>8.4} s", "write");
         }
         let steps = report.walk_steps();
         eprintln!(

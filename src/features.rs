@@ -15,6 +15,7 @@
 //! The normal term uses ‖n_i − n_j‖²/4, which equals (1 − n_i·n_j)/2 for unit normals and also
 //! behaves for "unknown" (zero) normals: two unknowns are equal, unknown vs known differs by 1/4.
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::buffers::Buffers;
@@ -209,14 +210,10 @@ impl Features {
             }
         }
         let wt = effective;
-        let mut records = vec![[0.0f32; FEATURE_LANES]; n];
-        for (i, r) in records.iter_mut().enumerate() {
-            let c = color.pixel(base + i);
-            for k in 0..3 {
-                r[k] = wt.color * tone.apply(exposure * c[k]);
+        let fetch = |name: &str, channels: usize, weight: f32| -> Result<Option<&Image>> {
+            if weight <= 0.0 {
+                return Ok(None);
             }
-        }
-        let fetch = |name: &str, channels: usize| -> Result<Option<&Image>> {
             let img = buffers.get_channels(name, channels)?;
             if let Some(img) = img {
                 if img.dims() != color.dims() {
@@ -228,44 +225,45 @@ impl Features {
             }
             Ok(img)
         };
-        let pack =
-            |records: &mut [[f32; FEATURE_LANES]], img: &Image, first: usize, scales: &[f32]| {
+        // (buffer, first lane, per-channel scale) of every feature in use.
+        let mut packs: Vec<(&Image, usize, Vec<f32>)> = Vec::new();
+        if let Some(a) = fetch("albedo", 3, wt.albedo)? {
+            packs.push((a, 3, vec![wt.albedo; 3]));
+        }
+        if let Some(nm) = fetch("normal", 3, wt.normal)? {
+            packs.push((nm, 6, vec![wt.normal.sqrt() * 0.5; 3]));
+        }
+        let material = wt.diffuse.max(wt.reflective).max(wt.refractive);
+        if let Some(m) = fetch("material", 3, material)? {
+            packs.push((m, 9, vec![wt.diffuse, wt.reflective, wt.refractive]));
+        }
+        if let Some(sh) = fetch("shadow", 1, wt.shadow)? {
+            packs.push((sh, 12, vec![wt.shadow]));
+        }
+        if let Some(z) = fetch("depth", 1, wt.depth)? {
+            packs.push((z, 13, vec![1.0]));
+        }
+        let mut records = vec![[0.0f32; FEATURE_LANES]; n];
+        // Every record depends on its own pixel only: fill them in parallel chunks.
+        const CHUNK: usize = 4096;
+        records
+            .par_chunks_mut(CHUNK)
+            .enumerate()
+            .for_each(|(chunk, records)| {
+                let first = base + chunk * CHUNK;
                 for (i, r) in records.iter_mut().enumerate() {
-                    for (k, (&v, &scale)) in img.pixel(base + i).iter().zip(scales).enumerate() {
-                        r[first + k] = scale * v;
+                    let c = color.pixel(first + i);
+                    for k in 0..3 {
+                        r[k] = wt.color * tone.apply(exposure * c[k]);
+                    }
+                    for (img, lane, scales) in &packs {
+                        for (k, (&v, &scale)) in img.pixel(first + i).iter().zip(scales).enumerate()
+                        {
+                            r[lane + k] = scale * v;
+                        }
                     }
                 }
-            };
-        if wt.albedo > 0.0 {
-            if let Some(a) = fetch("albedo", 3)? {
-                pack(&mut records, a, 3, &[wt.albedo; 3]);
-            }
-        }
-        if wt.normal > 0.0 {
-            if let Some(nm) = fetch("normal", 3)? {
-                pack(&mut records, nm, 6, &[wt.normal.sqrt() * 0.5; 3]);
-            }
-        }
-        if wt.diffuse > 0.0 || wt.reflective > 0.0 || wt.refractive > 0.0 {
-            if let Some(m) = fetch("material", 3)? {
-                pack(
-                    &mut records,
-                    m,
-                    9,
-                    &[wt.diffuse, wt.reflective, wt.refractive],
-                );
-            }
-        }
-        if wt.shadow > 0.0 {
-            if let Some(sh) = fetch("shadow", 1)? {
-                pack(&mut records, sh, 12, &[wt.shadow]);
-            }
-        }
-        if wt.depth > 0.0 {
-            if let Some(z) = fetch("depth", 1)? {
-                pack(&mut records, z, 13, &[1.0]);
-            }
-        }
+            });
         Ok((
             Features {
                 width: w,

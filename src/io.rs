@@ -38,17 +38,22 @@ fn read_exr(path: &Path, channels: usize) -> Result<Image> {
     if !path.is_file() {
         return Err(Error::file(path, "file not found"));
     }
-    let image = exrp::read()
+    let read = exrp::read()
         .no_deep_data()
         .largest_resolution_level()
         .all_channels()
         .first_valid_layer()
-        .all_attributes()
-        // Render sets are read one file per thread (`load_render_set`); the crate's own parallel
-        // decoder would start a thread pool per file, which costs more than a small file's decoding.
-        .non_parallel()
-        .from_file(path)
-        .map_err(|e| Error::file(path, format!("not a readable EXR file ({e})")))?;
+        .all_attributes();
+    // Render sets are read one file per thread (`load_render_set`). The crate's own parallel
+    // decoder starts a thread pool per file: worth it only for a large file, which would otherwise
+    // decode alone while the small ones are long done.
+    let large = std::fs::metadata(path).is_ok_and(|m| m.len() >= PARALLEL_DECODE_BYTES);
+    let image = if large && rayon::current_num_threads() > 1 {
+        read.from_file(path)
+    } else {
+        read.non_parallel().from_file(path)
+    }
+    .map_err(|e| Error::file(path, format!("not a readable EXR file ({e})")))?;
     let layer = image.layer_data;
     let (w, h) = (layer.size.width(), layer.size.height());
     let list = &layer.channel_data.list;
@@ -90,14 +95,18 @@ fn read_exr(path: &Path, channels: usize) -> Result<Image> {
             }
         }
     };
-    let planes: Vec<Vec<f32>> = picked
+    // f32 channels (what renderers write) are used in place; others are converted once.
+    let planes: Vec<std::borrow::Cow<[f32]>> = picked
         .iter()
-        .map(|c| c.sample_data.values_as_f32().collect())
+        .map(|c| match &c.sample_data {
+            exrp::FlatSamples::F32(v) => std::borrow::Cow::Borrowed(v.as_slice()),
+            other => std::borrow::Cow::Owned(other.values_as_f32().collect()),
+        })
         .collect();
-    let mut data = Vec::with_capacity(w * h * channels);
-    for i in 0..w * h {
-        for plane in &planes {
-            data.push(plane[i]);
+    let mut data = vec![0.0f32; w * h * channels];
+    for (k, plane) in planes.iter().enumerate() {
+        for (px, &v) in data.chunks_exact_mut(channels).zip(plane.iter()) {
+            px[k] = v;
         }
     }
     Image::from_vec(w, h, channels, data).map_err(|e| Error::file(path, e))
@@ -202,7 +211,7 @@ impl PendingOutput {
             .iter()
             .enumerate()
             .map(|(ci, name)| {
-                let plane: Vec<f32> = image.data().iter().skip(ci).step_by(c).copied().collect();
+                let plane: Vec<f32> = image.data().chunks_exact(c).map(|px| px[ci]).collect();
                 exrp::AnyChannel::new(*name, exrp::FlatSamples::F32(plane))
             })
             .collect();
@@ -228,9 +237,10 @@ impl PendingOutput {
                 .try_clone()
                 .map_err(|e| Error::output(&self.path, e))?;
             let mut writer = BufWriter::new(file);
-            // The crate's parallel encoder starts a thread pool per call: worth it only for large images.
+            // The crate's parallel encoder starts a thread pool per call: worth it only for large
+            // images, and only when the caller's pool has threads to spare (`--threads 1` is one).
             let write = out.write();
-            let write = if w * h >= PARALLEL_ENCODE_PIXELS {
+            let write = if w * h >= PARALLEL_ENCODE_PIXELS && rayon::current_num_threads() > 1 {
                 write
             } else {
                 write.non_parallel()
@@ -283,6 +293,9 @@ fn find_buffer_file(dir: &Path, name: &str) -> Option<PathBuf> {
 }
 
 /// Loads a render set folder: `color` is required, feature buffers are optional.
+/// Files at least this large are decoded with the exr crate's parallel decoder.
+const PARALLEL_DECODE_BYTES: u64 = 1 << 20;
+
 /// Images at least this large are compressed with the exr crate's parallel encoder.
 const PARALLEL_ENCODE_PIXELS: usize = 1 << 20;
 
@@ -301,20 +314,25 @@ pub fn load_render_set(dir: &Path) -> Result<RenderSet> {
             color_path.display()
         ));
     }
-    let color = read_image(&color_path, 3)?;
-    let (w, h) = color.dims();
-    buffers.insert("color", color)?;
-    files.push(("color".to_string(), color_path.clone()));
-    // The feature files are independent: decode them on all threads, then check them in order
-    // (so the first error reported is the same on every run).
+    // The files are independent: decode them all on all threads (colour, the largest, beside the
+    // features), then check them in order, so the first error reported is the same on every run.
     let found: Vec<(&str, usize, Option<PathBuf>)> = FEATURE_BUFFERS
         .iter()
         .map(|&(name, channels)| (name, channels, find_buffer_file(dir, name)))
         .collect();
-    let decoded: Vec<Option<Result<Image>>> = found
-        .par_iter()
-        .map(|(_, channels, path)| path.as_ref().map(|p| read_image(p, *channels)))
-        .collect();
+    let (color, decoded): (Result<Image>, Vec<Option<Result<Image>>>) = rayon::join(
+        || read_image(&color_path, 3),
+        || {
+            found
+                .par_iter()
+                .map(|(_, channels, path)| path.as_ref().map(|p| read_image(p, *channels)))
+                .collect()
+        },
+    );
+    let color = color?;
+    let (w, h) = color.dims();
+    buffers.insert("color", color)?;
+    files.push(("color".to_string(), color_path.clone()));
     let mut missing = Vec::new();
     for ((name, _, path), img) in found.into_iter().zip(decoded) {
         let (Some(path), Some(img)) = (path, img) else {
