@@ -8,6 +8,7 @@
 //! rounding whatever the filters are.
 
 use fast_image_resize as fr;
+use rayon::prelude::*;
 
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
@@ -199,8 +200,8 @@ impl BlendDomain {
         let mut out = img.clone();
         if self == BlendDomain::Log {
             out.data_mut()
-                .iter_mut()
-                .for_each(|v| *v = (v.max(0.0) + LOG_EPS).ln());
+                .par_chunks_mut(1 << 14)
+                .for_each(|c| c.iter_mut().for_each(|v| *v = (v.max(0.0) + LOG_EPS).ln()));
         }
         out
     }
@@ -208,8 +209,8 @@ impl BlendDomain {
     fn inverse(self, img: &mut Image) {
         if self == BlendDomain::Log {
             img.data_mut()
-                .iter_mut()
-                .for_each(|v| *v = v.exp() - LOG_EPS);
+                .par_chunks_mut(1 << 14)
+                .for_each(|c| c.iter_mut().for_each(|v| *v = v.exp() - LOG_EPS));
         }
     }
 }
@@ -314,6 +315,12 @@ pub fn blend(
         .len()
         .checked_sub(1)
         .ok_or_else(|| Error::Runtime("blend of no levels".into()))?;
+    if last == 0 {
+        // One level is its own reconstruction (R_0 = D_0): no round trip through the blend domain.
+        let mut r = d[0].clone();
+        r.data_mut().iter_mut().for_each(|v| *v = v.max(0.0));
+        return Ok(r);
+    }
     let mut r = domain.forward(&d[last]);
     for l in (0..last).rev() {
         let (w, h) = d[l].dims();

@@ -1,6 +1,7 @@
 //! Input sanitisation (ALGORITHM.md §1): make every buffer finite and in range before any maths,
 //! and count what changed so the run can report it.
 
+use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::buffers::Buffers;
@@ -52,35 +53,46 @@ impl SanitizeReport {
     }
 }
 
+/// Applies `fix` to every value, in parallel chunks; returns how many it reported as changed.
+fn fix_each(data: &mut [f32], fix: impl Fn(&mut f32) -> bool + Sync) -> usize {
+    data.par_chunks_mut(1 << 16)
+        .map(|chunk| chunk.iter_mut().map(|v| fix(v) as usize).sum::<usize>())
+        .sum()
+}
+
 /// Sanitises every known buffer in place.
 pub fn sanitize(buffers: &mut Buffers) -> SanitizeReport {
     let mut report = SanitizeReport::default();
     for name in ["color", "reference"] {
         if let Some(img) = buffers.get_mut(name) {
-            for v in img.data_mut() {
-                if !v.is_finite() {
+            report.color_nonfinite += fix_each(img.data_mut(), |v| {
+                let bad = !v.is_finite();
+                if bad {
                     *v = 0.0;
-                    report.color_nonfinite += 1;
-                } else if *v < 0.0 {
-                    *v = 0.0;
-                    report.color_negative += 1;
                 }
-            }
+                bad
+            });
+            report.color_negative += fix_each(img.data_mut(), |v| {
+                let negative = *v < 0.0;
+                if negative {
+                    *v = 0.0;
+                }
+                negative
+            });
         }
     }
     for name in ["albedo", "material", "shadow"] {
         if let Some(img) = buffers.get_mut(name) {
-            for v in img.data_mut() {
+            report.feature_clamped += fix_each(img.data_mut(), |v| {
                 let clean = if v.is_finite() {
                     v.clamp(0.0, 1.0)
                 } else {
                     0.0
                 };
-                if clean != *v {
-                    *v = clean;
-                    report.feature_clamped += 1;
-                }
-            }
+                let changed = clean != *v;
+                *v = clean;
+                changed
+            });
         }
     }
     if let Some(img) = buffers.get_mut("normal") {
@@ -111,12 +123,13 @@ pub fn sanitize(buffers: &mut Buffers) -> SanitizeReport {
         } else {
             1.0
         };
-        for v in img.data_mut() {
-            if !v.is_finite() || *v < 0.0 {
+        report.depth_background += fix_each(img.data_mut(), |v| {
+            let miss = !v.is_finite() || *v < 0.0;
+            if miss {
                 *v = background;
-                report.depth_background += 1;
             }
-        }
+            miss
+        });
     }
     report
 }
