@@ -1027,7 +1027,6 @@ mod avx2 {
         pixel: [i32; SLOTS],
         step: [i32; SLOTS],
         ctr: [u64; SLOTS],
-        log_p: [f64; SLOTS],
         sum: [[f64; SLOTS]; 3],
         weight: [f64; SLOTS],
     }
@@ -1073,6 +1072,10 @@ mod avx2 {
         let ln_pmin = _mm256_set1_pd(params.p_min.ln());
         let walks = params.walks as usize;
         let total = walks * win.starts.len();
+        assert!(
+            win.starts.len() <= BATCH_WALKS,
+            "batch larger than `batch` gives"
+        );
         parts.clear();
         parts.resize(total, Accum::default());
         if total == 0 {
@@ -1086,9 +1089,14 @@ mod avx2 {
         let (grid, egrid) = (win.grid.as_ptr(), win.egrid.as_ptr());
 
         let two_gamma = GAMMA.wrapping_mul(2);
+        // One key per start pixel ([`batch`] never gives more than BATCH_WALKS start pixels).
+        let mut pkeys = [0u64; BATCH_WALKS];
+        for (key, &(_, i0)) in pkeys.iter_mut().zip(win.starts) {
+            *key = pixel_key(input.seed, input.level, i0);
+        }
         let start = |j: usize| {
             let (cell, i0) = win.starts[j / walks];
-            let key = walk_key(pixel_key(input.seed, input.level, i0), (j % walks) as u32);
+            let key = walk_key(pkeys[j / walks], (j % walks) as u32);
             (cell as i32, (i0 - base) as i32, key.wrapping_add(two_gamma))
         };
         let mut st = Lanes {
@@ -1097,7 +1105,6 @@ mod avx2 {
             pixel: [0; SLOTS],
             step: [0; SLOTS],
             ctr: [0; SLOTS],
-            log_p: [0.0; SLOTS],
             sum: [[0.0; SLOTS]; 3],
             weight: [0.0; SLOTS],
         };
@@ -1116,7 +1123,6 @@ mod avx2 {
         let mut steps = 0u64;
         let max_steps = _mm256_set1_epi32(params.max_steps.min(i32::MAX as u32) as i32);
         let load_i = |a: &[i32; SLOTS]| _mm256_loadu_si256(a.as_ptr().cast());
-        let load_d = |a: &[f64; SLOTS], h: usize| _mm256_loadu_pd(a[4 * h..].as_ptr());
         let mut cell = load_i(&st.cell);
         let mut pixel = load_i(&st.pixel);
         let mut step = load_i(&st.step);
@@ -1124,7 +1130,7 @@ mod avx2 {
             _mm256_loadu_si256(st.ctr.as_ptr().cast()),
             _mm256_loadu_si256(st.ctr[4..].as_ptr().cast()),
         ];
-        let mut log_p = [load_d(&st.log_p, 0), load_d(&st.log_p, 1)];
+        let mut log_p = [_mm256_setzero_pd(); 2];
         let mut sum = [[_mm256_setzero_pd(); 2]; 3];
         let mut weight = [_mm256_setzero_pd(); 2];
         while live != 0 {
@@ -1278,50 +1284,58 @@ mod avx2 {
                 weight[h] = add_where(weight[h], wgt[h], moved[h]);
                 log_p[h] = _mm256_blendv_pd(log_p[h], new_log_p[h], moved[h]);
             }
-            // Ended walks hand in their sums; their lane takes the next walk.
+            // Ended walks hand in their sums; their lane takes the next walk. Only the sums go
+            // through memory; the resets are blends, and the new walks' starts one blend per field.
             let ended = live & !going;
             if ended != 0 {
-                _mm256_storeu_si256(st.cell.as_mut_ptr().cast(), cell);
-                _mm256_storeu_si256(st.pixel.as_mut_ptr().cast(), pixel);
                 _mm256_storeu_si256(st.step.as_mut_ptr().cast(), step);
                 for h in 0..2 {
-                    _mm256_storeu_si256(st.ctr[4 * h..].as_mut_ptr().cast(), ctr[h]);
-                    _mm256_storeu_pd(st.log_p[4 * h..].as_mut_ptr(), log_p[h]);
                     _mm256_storeu_pd(st.weight[4 * h..].as_mut_ptr(), weight[h]);
                     for ch in 0..3 {
                         _mm256_storeu_pd(st.sum[ch][4 * h..].as_mut_ptr(), sum[ch][h]);
                     }
                 }
-                for s in 0..SLOTS {
-                    if ended & (1 << s) == 0 {
-                        continue;
-                    }
+                let mut refilled = 0i32;
+                let mut bits = ended;
+                while bits != 0 {
+                    let s = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
                     steps += st.step[s] as u64;
                     parts[st.job[s]] = Accum {
                         sum: [st.sum[0][s], st.sum[1][s], st.sum[2][s]],
                         weight: st.weight[s],
                     };
-                    (st.step[s], st.log_p[s], st.weight[s]) = (0, 0.0, 0.0);
-                    for ch in 0..3 {
-                        st.sum[ch][s] = 0.0;
-                    }
                     if next < total {
                         (st.cell[s], st.pixel[s], st.ctr[s]) = start(next);
                         st.job[s] = next;
                         next += 1;
+                        refilled |= 1 << s;
                     } else {
                         live &= !(1 << s);
                     }
                 }
-                cell = load_i(&st.cell);
-                pixel = load_i(&st.pixel);
-                step = load_i(&st.step);
+                let ended_v = lanes(ended);
+                let reset = widen(ended_v);
+                step = _mm256_andnot_si256(ended_v, step);
                 for h in 0..2 {
-                    ctr[h] = _mm256_loadu_si256(st.ctr[4 * h..].as_ptr().cast());
-                    log_p[h] = load_d(&st.log_p, h);
-                    weight[h] = load_d(&st.weight, h);
+                    log_p[h] = _mm256_andnot_pd(reset[h], log_p[h]);
+                    weight[h] = _mm256_andnot_pd(reset[h], weight[h]);
                     for ch in 0..3 {
-                        sum[ch][h] = load_d(&st.sum[ch], h);
+                        sum[ch][h] = _mm256_andnot_pd(reset[h], sum[ch][h]);
+                    }
+                }
+                if refilled != 0 {
+                    let fresh = lanes(refilled);
+                    cell = _mm256_blendv_epi8(cell, load_i(&st.cell), fresh);
+                    pixel = _mm256_blendv_epi8(pixel, load_i(&st.pixel), fresh);
+                    let fresh = widen(fresh);
+                    for h in 0..2 {
+                        let new = _mm256_loadu_si256(st.ctr[4 * h..].as_ptr().cast());
+                        ctr[h] = _mm256_castpd_si256(_mm256_blendv_pd(
+                            _mm256_castsi256_pd(ctr[h]),
+                            _mm256_castsi256_pd(new),
+                            fresh[h],
+                        ));
                     }
                 }
             }
