@@ -28,6 +28,7 @@ fn bench_walks(c: &mut Criterion) {
         mask: None,
         seed: 0,
         level: 0,
+        origin: 0,
     };
     let params = WalkParams::default();
     let steps = denoise_with(Kernel::Scalar, &input, &params, &|| {})

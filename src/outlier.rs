@@ -153,7 +153,7 @@ impl Detection {
     pub fn mask_image(&self, width: usize, height: usize) -> Image {
         let data = self
             .mask
-            .iter()
+            .par_iter()
             .map(|&m| if m { 1.0 } else { 0.0 })
             .collect();
         Image::from_vec(width, height, 1, data).expect("mask has one value per pixel")
@@ -169,7 +169,7 @@ pub fn luminance(c: &[f32]) -> f32 {
 
 /// Luminance of every pixel of a 3-channel image.
 pub fn luminance_image(color: &Image) -> Vec<f32> {
-    color.data().chunks_exact(3).map(luminance).collect()
+    color.data().par_chunks_exact(3).map(luminance).collect()
 }
 
 /// Median of `v` (reorders it); `v` must not be empty.
@@ -219,8 +219,8 @@ pub fn detect(color: &Image, guides: &Guides, params: &DetectParams) -> Detectio
         };
     }
     let key: Vec<f32> = match params.rule {
-        Rule::Zscore => lum.iter().map(|&l| l.max(LOG_EPS).ln()).collect(),
-        Rule::Feature => lum.iter().map(|&l| l / (1.0 + l)).collect(),
+        Rule::Zscore => lum.par_iter().map(|&l| l.max(LOG_EPS).ln()).collect(),
+        Rule::Feature => lum.par_iter().map(|&l| l / (1.0 + l)).collect(),
         Rule::Percentile => lum.clone(),
     };
     let p = *params;
@@ -232,7 +232,7 @@ pub fn detect(color: &Image, guides: &Guides, params: &DetectParams) -> Detectio
             }
         },
     );
-    let mask = lum.iter().zip(&limit).map(|(&l, &t)| l > t).collect();
+    let mask = lum.par_iter().zip(&limit).map(|(&l, &t)| l > t).collect();
     Detection { mask, limit }
 }
 

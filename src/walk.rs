@@ -89,6 +89,17 @@ pub struct WalkInput<'a> {
     pub seed: u64,
     /// Pyramid level, so every level draws its own random numbers.
     pub level: u32,
+    /// Index in the whole image of this input's first pixel (0 for a whole image): a strip of
+    /// rows draws the random numbers the whole image would.
+    pub origin: usize,
+}
+
+impl WalkInput<'_> {
+    /// The key of start pixel `pixel` (an index into this input).
+    #[inline]
+    fn key(&self, pixel: usize) -> u64 {
+        pixel_key(self.seed, self.level, self.origin + pixel)
+    }
 }
 
 fn splitmix(mut z: u64) -> u64 {
@@ -275,7 +286,7 @@ pub fn denoise_reference(input: &WalkInput, params: &WalkParams) -> (Image, Walk
     for y0 in 0..h {
         for x0 in 0..w {
             let i0 = y0 * w + x0;
-            let pkey = pixel_key(input.seed, input.level, i0);
+            let pkey = input.key(i0);
             let mut acc = Accum::new(input, i0, params);
             for walk in 0..params.walks {
                 stats.walks += 1;
@@ -397,6 +408,83 @@ impl Near {
     fn lin(&self, i: usize) -> &[f32; 8] {
         &self.lin[i - self.base]
     }
+}
+
+/// Image rows per strip of [`denoise_in_strips`].
+pub const STRIP_ROWS: usize = 256;
+
+/// The strips of [`denoise_in_strips`] for an image `h` rows high: (rows kept, rows computed).
+pub fn strips(
+    h: usize,
+    params: &WalkParams,
+    strip_rows: usize,
+) -> Vec<(Range<usize>, Range<usize>)> {
+    let Some(reach) = params.window.map(|r| r.min(params.max_steps) as usize) else {
+        return vec![(0..h, 0..h)];
+    };
+    (0..h)
+        .step_by(strip_rows.max(1))
+        .map(|y0| {
+            let y1 = (y0 + strip_rows.max(1)).min(h);
+            (y0..y1, y0.saturating_sub(reach)..(y1 + reach).min(h))
+        })
+        .collect()
+}
+
+/// [`denoise`] a strip of `strip_rows` rows at a time, with features built per strip by
+/// `features_for(rows)` (a [`Features`] whose row 0 is image row `rows.start`).
+///
+/// Why: features take 64 bytes a pixel, the largest per-pixel table of a run (268 MB at 4 MP).
+/// Windowed walks reach at most the window radius from their start row, so each strip needs only
+/// its rows plus that halo; the halo rows are denoised too and discarded (2r of every
+/// `strip_rows`). Keys use whole-image pixel indices and nothing a walk can reach differs, so the
+/// result is bit-identical to one whole-image run. Unbounded walks may reach any row: one strip.
+/// The steps returned count the work done, the halo rows' walks included.
+#[allow(clippy::too_many_arguments)]
+pub fn denoise_in_strips(
+    color: &Image,
+    features_for: &dyn Fn(Range<usize>) -> crate::error::Result<Features>,
+    mask: Option<&[bool]>,
+    seed: u64,
+    level: u32,
+    params: &WalkParams,
+    strip_rows: usize,
+    on_row: &(dyn Fn() + Sync),
+) -> crate::error::Result<(Image, WalkStats)> {
+    let (w, h) = color.dims();
+    let mut out = Image::new(w, h, 3);
+    let mut stats = WalkStats::default();
+    for (kept, rows) in strips(h, params, strip_rows) {
+        let (y0, y1) = (kept.start, kept.end);
+        let features = features_for(rows.clone())?;
+        let strip_color;
+        let sub = if rows == (0..h) {
+            color
+        } else {
+            strip_color = Image::from_vec(
+                w,
+                rows.len(),
+                3,
+                color.data()[3 * w * rows.start..3 * w * rows.end].to_vec(),
+            )
+            .expect("a strip of a 3-channel image");
+            &strip_color
+        };
+        let input = WalkInput {
+            color: sub,
+            features: &features,
+            mask: mask.map(|m| &m[w * rows.start..w * rows.end]),
+            seed,
+            level,
+            origin: w * rows.start,
+        };
+        let (part, part_stats) = denoise(&input, params, on_row);
+        let keep = 3 * w * (y0 - rows.start)..3 * w * (y1 - rows.start);
+        out.data_mut()[3 * w * y0..3 * w * y1].copy_from_slice(&part.data()[keep]);
+        stats.steps += part_stats.steps;
+    }
+    stats.walks = (w * h) as u64 * params.walks as u64;
+    Ok((out, stats))
 }
 
 /// Start-pixel rows per parallel task: the band's neighbour terms (with a window-radius halo) stay
@@ -777,7 +865,7 @@ fn walk_windowed(
     let goff: [isize; 8] = OFFSETS.map(|(dx, dy)| dy * win.side as isize + dx);
     let ioff: [isize; 8] = OFFSETS.map(|(dx, dy)| dy * w as isize + dx);
     let ln_pmin = params.p_min.ln();
-    let pkey = pixel_key(input.seed, input.level, win.i0);
+    let pkey = input.key(win.i0);
     let mut acc = Accum::new(input, win.i0, params);
     let mut steps = 0u64;
     for walk in 0..params.walks {
@@ -827,7 +915,7 @@ mod avx2 {
 
     use std::arch::x86_64::*;
 
-    use super::{choose_log, pixel_key, walk_key, Accum, Near, GAMMA, LINEAR_MIN, OFFSETS};
+    use super::{choose_log, walk_key, Accum, Near, GAMMA, LINEAR_MIN, OFFSETS};
     use crate::fastmath::avx2::exp_neg8;
     use crate::fastmath::{LN2_HI, LN2_LO, LN_POLY};
     use crate::walk::{WalkInput, WalkParams};
@@ -1092,7 +1180,7 @@ mod avx2 {
         // One key per start pixel ([`batch`] never gives more than BATCH_WALKS start pixels).
         let mut pkeys = [0u64; BATCH_WALKS];
         for (key, &(_, i0)) in pkeys.iter_mut().zip(win.starts) {
-            *key = pixel_key(input.seed, input.level, i0);
+            *key = input.key(i0);
         }
         let start = |j: usize| {
             let (cell, i0) = win.starts[j / walks];
@@ -1364,7 +1452,7 @@ fn walk_unbounded(
     let i0 = y0 * w + x0;
     let ioff: [isize; 8] = OFFSETS.map(|(dx, dy)| dy * w as isize + dx);
     let ln_pmin = params.p_min.ln();
-    let pkey = pixel_key(input.seed, input.level, i0);
+    let pkey = input.key(i0);
     let mut acc = Accum::new(input, i0, params);
     let mut steps = 0u64;
     for walk in 0..params.walks {

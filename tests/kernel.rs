@@ -4,7 +4,9 @@ mod common;
 
 use common::synthetic_set;
 use gsid::features::{Features, Tone, Weights};
-use gsid::walk::{denoise, denoise_reference, denoise_with, Kernel, WalkInput, WalkParams};
+use gsid::walk::{
+    denoise, denoise_in_strips, denoise_reference, denoise_with, Kernel, WalkInput, WalkParams,
+};
 use gsid::Image;
 use proptest::prelude::*;
 
@@ -24,6 +26,7 @@ fn run_both(
         mask,
         seed: 3,
         level: 1,
+        origin: 0,
     };
     let (fast, fast_stats) = denoise(&input, params, &|| {});
     let (slow, slow_stats) = denoise_reference(&input, params);
@@ -77,6 +80,7 @@ fn output_is_identical_on_one_and_two_threads() {
         mask: None,
         seed: 11,
         level: 0,
+        origin: 0,
     };
     let params = WalkParams::default();
     let run = |threads| {
@@ -107,6 +111,7 @@ fn levels_and_seeds_draw_different_walks() {
                 mask: None,
                 seed,
                 level,
+                origin: 0,
             },
             &params,
             &|| {},
@@ -185,6 +190,7 @@ fn every_kernel_equals_the_reference() {
                 mask: Some(&mask),
                 seed: 11,
                 level: 0,
+                origin: 0,
             };
             let (want, want_stats) = denoise_reference(&input, &params);
             for kernel in [Kernel::Scalar, Kernel::Avx2] {
@@ -192,6 +198,55 @@ fn every_kernel_equals_the_reference() {
                 let case = format!("{kernel:?} σ {sigma} cap {max_steps} window {window:?}");
                 assert_eq!(stats, want_stats, "{case}");
                 assert_eq!(bits(&got), bits(&want), "{case}");
+            }
+        }
+    }
+}
+
+/// Denoising strip by strip (features built per strip plus the window's halo) gives the bits of one
+/// whole-image run, for strips shorter and longer than the window, with a mask, and without a window.
+#[test]
+fn strips_equal_one_whole_image_run() {
+    let (w, h) = (19, 41);
+    let set = synthetic_set(w, h);
+    let color = set.get("color").unwrap();
+    let weights = Weights::default();
+    let (features, _) = Features::build(color, &set, &weights, Tone::Reinhard, 1.0).unwrap();
+    let features_for = |rows: std::ops::Range<usize>| {
+        Features::build_rows(color, &set, &weights, Tone::Reinhard, 1.0, rows).map(|(f, _)| f)
+    };
+    let mask: Vec<bool> = (0..w * h).map(|i| i % 13 == 5).collect();
+    for window in [Some(1), Some(4), None] {
+        for m in [None, Some(mask.as_slice())] {
+            let params = WalkParams {
+                walks: 5,
+                window,
+                ..WalkParams::default()
+            };
+            let whole = WalkInput {
+                color,
+                features: &features,
+                mask: m,
+                seed: 3,
+                level: 1,
+                origin: 0,
+            };
+            let (want, want_stats) = denoise(&whole, &params, &|| {});
+            for strip_rows in [1, 3, 8, 40, 100] {
+                let (got, stats) =
+                    denoise_in_strips(color, &features_for, m, 3, 1, &params, strip_rows, &|| {})
+                        .unwrap();
+                let case = format!(
+                    "window {window:?}, strips of {strip_rows}, mask {}",
+                    m.is_some()
+                );
+                assert_eq!(bits(&got), bits(&want), "{case}");
+                // Steps count the work done, halo rows included: more than one run's when split.
+                if window.is_none() || strip_rows >= h {
+                    assert_eq!(stats, want_stats, "{case}");
+                } else {
+                    assert!(stats.steps > want_stats.steps, "{case}");
+                }
             }
         }
     }

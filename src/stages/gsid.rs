@@ -7,7 +7,7 @@ use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::features::{Features, Tone, Weights};
 use crate::progress::Progress;
-use crate::walk::{self, WalkInput, WalkParams};
+use crate::walk::{self, WalkParams};
 
 /// Parameters of the `gsid` stage (keys of its table in a pipeline file).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -141,12 +141,14 @@ pub fn run_gsid(
             format!("has {} channels, expected 3", color.channels()),
         ));
     }
-    let (features, off) = Features::build(
+    // Which features are off does not depend on the rows: ask once, on an empty row range.
+    let (_, off) = Features::build_rows(
         color,
         buffers,
         &params.weights,
         params.tone,
         params.exposure,
+        0..0,
     )?;
     if !off.is_empty() {
         ctx.note(format!(
@@ -155,15 +157,34 @@ pub fn run_gsid(
         ));
     }
     let mask = read_mask(buffers, params.mask.as_deref(), color.dims(), ctx, label)?;
-    let walk_input = WalkInput {
-        color,
-        features: &features,
-        mask: mask.as_deref(),
-        seed: ctx.seed,
-        level: ctx.level,
+    let features_for = |rows: std::ops::Range<usize>| {
+        Features::build_rows(
+            color,
+            buffers,
+            &params.weights,
+            params.tone,
+            params.exposure,
+            rows,
+        )
+        .map(|(f, _)| f)
     };
-    let progress = Progress::new(ctx.progress, label, color.height() as u64);
-    let (out, stats) = walk::denoise(&walk_input, &params.walk_params(), &|| progress.inc(1));
+    let walk_params = params.walk_params();
+    // Strips recompute their halo rows, so the bar counts every row the kernel finishes.
+    let rows_run: usize = walk::strips(color.height(), &walk_params, walk::STRIP_ROWS)
+        .iter()
+        .map(|(_, rows)| rows.len())
+        .sum();
+    let progress = Progress::new(ctx.progress, label, rows_run as u64);
+    let (out, stats) = walk::denoise_in_strips(
+        color,
+        &features_for,
+        mask.as_deref(),
+        ctx.seed,
+        ctx.level,
+        &walk_params,
+        walk::STRIP_ROWS,
+        &|| progress.inc(1),
+    )?;
     progress.finish();
     Ok((out, stats.steps))
 }
