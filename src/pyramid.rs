@@ -227,48 +227,52 @@ fn guided_expand(c: &Image, fine: &Image, coarse_guide: &Image) -> Image {
     let (cw, ch) = c.dims();
     let inv_r = 1.0 / (2.0 * GUIDE_SIGMA * GUIDE_SIGMA);
     let mut out = Image::new(w, h, 3);
-    for y in 0..h {
-        for x in 0..w {
-            // Fine pixel centre in coarse pixel coordinates.
-            let fx = (x as f32 + 0.5) * cw as f32 / w as f32 - 0.5;
-            let fy = (y as f32 + 0.5) * ch as f32 / h as f32 - 0.5;
-            let (x0, y0) = (fx.floor() as isize, fy.floor() as isize);
-            let g = fine.at(x, y);
-            let (mut sum, mut plain) = ([0.0f32; 3], [0.0f32; 3]);
-            let (mut wsum, mut psum) = (0.0f32, 0.0f32);
-            for qy in y0 - 1..=y0 + 2 {
-                for qx in x0 - 1..=x0 + 2 {
-                    if qx < 0 || qy < 0 || qx >= cw as isize || qy >= ch as isize {
-                        continue;
+    // Rows are independent: one parallel task per row.
+    out.data_mut()
+        .par_chunks_mut(3 * w.max(1))
+        .enumerate()
+        .for_each(|(y, row)| {
+            for x in 0..w {
+                // Fine pixel centre in coarse pixel coordinates.
+                let fx = (x as f32 + 0.5) * cw as f32 / w as f32 - 0.5;
+                let fy = (y as f32 + 0.5) * ch as f32 / h as f32 - 0.5;
+                let (x0, y0) = (fx.floor() as isize, fy.floor() as isize);
+                let g = fine.at(x, y);
+                let (mut sum, mut plain) = ([0.0f32; 3], [0.0f32; 3]);
+                let (mut wsum, mut psum) = (0.0f32, 0.0f32);
+                for qy in y0 - 1..=y0 + 2 {
+                    for qx in x0 - 1..=x0 + 2 {
+                        if qx < 0 || qy < 0 || qx >= cw as isize || qy >= ch as isize {
+                            continue;
+                        }
+                        let (qx, qy) = (qx as usize, qy as usize);
+                        let (dx, dy) = (qx as f32 - fx, qy as f32 - fy);
+                        let spatial = gaussian((dx * dx + dy * dy).sqrt() as f64) as f32;
+                        let q = coarse_guide.at(qx, qy);
+                        let d2 =
+                            ((g[0] - q[0]).powi(2) + (g[1] - q[1]).powi(2) + (g[2] - q[2]).powi(2))
+                                / 3.0;
+                        let wq = spatial * (-d2 * inv_r).exp();
+                        let cq = c.at(qx, qy);
+                        for k in 0..3 {
+                            sum[k] += wq * cq[k];
+                            plain[k] += spatial * cq[k];
+                        }
+                        wsum += wq;
+                        psum += spatial;
                     }
-                    let (qx, qy) = (qx as usize, qy as usize);
-                    let (dx, dy) = (qx as f32 - fx, qy as f32 - fy);
-                    let spatial = gaussian((dx * dx + dy * dy).sqrt() as f64) as f32;
-                    let q = coarse_guide.at(qx, qy);
-                    let d2 =
-                        ((g[0] - q[0]).powi(2) + (g[1] - q[1]).powi(2) + (g[2] - q[2]).powi(2))
-                            / 3.0;
-                    let wq = spatial * (-d2 * inv_r).exp();
-                    let cq = c.at(qx, qy);
-                    for k in 0..3 {
-                        sum[k] += wq * cq[k];
-                        plain[k] += spatial * cq[k];
-                    }
-                    wsum += wq;
-                    psum += spatial;
+                }
+                // No similar coarse pixel: fall back to the plain spatial weights rather than dropping the correction.
+                let px = &mut row[3 * x..3 * x + 3];
+                for k in 0..3 {
+                    px[k] = if wsum > 1e-4 * psum {
+                        sum[k] / wsum
+                    } else {
+                        plain[k] / psum.max(f32::MIN_POSITIVE)
+                    };
                 }
             }
-            // No similar coarse pixel: fall back to the plain spatial weights rather than dropping the correction.
-            let px = out.pixel_mut(y * w + x);
-            for k in 0..3 {
-                px[k] = if wsum > 1e-4 * psum {
-                    sum[k] / wsum
-                } else {
-                    plain[k] / psum.max(f32::MIN_POSITIVE)
-                };
-            }
-        }
-    }
+        });
     out
 }
 
@@ -279,22 +283,25 @@ fn guided_expand(c: &Image, fine: &Image, coarse_guide: &Image) -> Image {
 fn clamp_to_neighbourhood(img: &mut Image, guide: &Image, r: usize) {
     let (w, h) = img.dims();
     let c = img.channels();
-    for y in 0..h {
-        for x in 0..w {
-            for k in 0..c {
-                let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-                for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
-                    for xx in x.saturating_sub(r)..=(x + r).min(w - 1) {
-                        let v = guide.at(xx, yy)[k];
-                        lo = lo.min(v);
-                        hi = hi.max(v);
+    img.data_mut()
+        .par_chunks_mut(c * w.max(1))
+        .enumerate()
+        .for_each(|(y, row)| {
+            for x in 0..w {
+                for k in 0..c {
+                    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+                    for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
+                        for xx in x.saturating_sub(r)..=(x + r).min(w - 1) {
+                            let v = guide.at(xx, yy)[k];
+                            lo = lo.min(v);
+                            hi = hi.max(v);
+                        }
                     }
+                    let v = &mut row[c * x + k];
+                    *v = v.clamp(lo, hi);
                 }
-                let v = &mut img.pixel_mut(y * w + x)[k];
-                *v = v.clamp(lo, hi);
             }
-        }
-    }
+        });
 }
 
 /// Laplacian blending of denoised levels `d[0]` (finest) … `d[L]` (coarsest), in domain T:
