@@ -292,13 +292,13 @@ fn find_buffer_file(dir: &Path, name: &str) -> Option<PathBuf> {
         .find(|p| p.is_file())
 }
 
-/// Loads a render set folder: `color` is required, feature buffers are optional.
 /// Files at least this large are decoded with the exr crate's parallel decoder.
 const PARALLEL_DECODE_BYTES: u64 = 1 << 20;
 
 /// Images at least this large are compressed with the exr crate's parallel encoder.
 const PARALLEL_ENCODE_PIXELS: usize = 1 << 20;
 
+/// Loads a render set folder: `color` is required, feature buffers are optional.
 pub fn load_render_set(dir: &Path) -> Result<RenderSet> {
     if !dir.is_dir() {
         return Err(Error::file(dir, "is not a render set folder"));

@@ -53,11 +53,25 @@ impl SanitizeReport {
     }
 }
 
-/// Applies `fix` to every value, in parallel chunks; returns how many it reported as changed.
-fn fix_each(data: &mut [f32], fix: impl Fn(&mut f32) -> bool + Sync) -> usize {
+/// Applies `fix` to every value, in parallel chunks; `fix` reports which of N kinds of change it
+/// made, and the result counts each kind.
+fn fix_each<const N: usize>(
+    data: &mut [f32],
+    fix: impl Fn(&mut f32) -> [bool; N] + Sync,
+) -> [usize; N] {
+    let add = |mut a: [usize; N], b: [usize; N]| {
+        for (x, y) in a.iter_mut().zip(b) {
+            *x += y;
+        }
+        a
+    };
     data.par_chunks_mut(1 << 16)
-        .map(|chunk| chunk.iter_mut().map(|v| fix(v) as usize).sum::<usize>())
-        .sum()
+        .map(|chunk| {
+            chunk
+                .iter_mut()
+                .fold([0; N], |acc, v| add(acc, fix(v).map(usize::from)))
+        })
+        .reduce(|| [0; N], add)
 }
 
 /// Sanitises every known buffer in place.
@@ -65,25 +79,20 @@ pub fn sanitize(buffers: &mut Buffers) -> SanitizeReport {
     let mut report = SanitizeReport::default();
     for name in ["color", "reference"] {
         if let Some(img) = buffers.get_mut(name) {
-            report.color_nonfinite += fix_each(img.data_mut(), |v| {
-                let bad = !v.is_finite();
-                if bad {
+            let [nonfinite, negative] = fix_each(img.data_mut(), |v| {
+                let kinds = [!v.is_finite(), v.is_finite() && *v < 0.0];
+                if kinds.contains(&true) {
                     *v = 0.0;
                 }
-                bad
+                kinds
             });
-            report.color_negative += fix_each(img.data_mut(), |v| {
-                let negative = *v < 0.0;
-                if negative {
-                    *v = 0.0;
-                }
-                negative
-            });
+            report.color_nonfinite += nonfinite;
+            report.color_negative += negative;
         }
     }
     for name in ["albedo", "material", "shadow"] {
         if let Some(img) = buffers.get_mut(name) {
-            report.feature_clamped += fix_each(img.data_mut(), |v| {
+            let [clamped] = fix_each(img.data_mut(), |v| {
                 let clean = if v.is_finite() {
                     v.clamp(0.0, 1.0)
                 } else {
@@ -91,8 +100,9 @@ pub fn sanitize(buffers: &mut Buffers) -> SanitizeReport {
                 };
                 let changed = clean != *v;
                 *v = clean;
-                changed
+                [changed]
             });
+            report.feature_clamped += clamped;
         }
     }
     if let Some(img) = buffers.get_mut("normal") {
@@ -123,13 +133,14 @@ pub fn sanitize(buffers: &mut Buffers) -> SanitizeReport {
         } else {
             1.0
         };
-        report.depth_background += fix_each(img.data_mut(), |v| {
+        let [misses] = fix_each(img.data_mut(), |v| {
             let miss = !v.is_finite() || *v < 0.0;
             if miss {
                 *v = background;
             }
-            miss
+            [miss]
         });
+        report.depth_background += misses;
     }
     report
 }

@@ -41,6 +41,13 @@ pub const OFFSETS: [(isize, isize); 8] = [
     (1, 1),
 ];
 
+/// The index step to each of the 8 neighbours (in [`OFFSETS`] order) in a row-major grid `stride`
+/// wide.
+#[inline]
+fn lane_offsets(stride: usize) -> [isize; 8] {
+    OFFSETS.map(|(dx, dy)| dy * stride as isize + dx)
+}
+
 /// Parameters of one walk kernel run, already validated by the stage.
 #[derive(Clone, Debug, PartialEq)]
 pub struct WalkParams {
@@ -862,8 +869,8 @@ fn walk_windowed(
     win: &Window,
 ) -> (Accum, u64) {
     let w = input.color.width();
-    let goff: [isize; 8] = OFFSETS.map(|(dx, dy)| dy * win.side as isize + dx);
-    let ioff: [isize; 8] = OFFSETS.map(|(dx, dy)| dy * w as isize + dx);
+    let goff = lane_offsets(win.side);
+    let ioff = lane_offsets(w);
     let ln_pmin = params.p_min.ln();
     let pkey = input.key(win.i0);
     let mut acc = Accum::new(input, win.i0, params);
@@ -915,7 +922,7 @@ mod avx2 {
 
     use std::arch::x86_64::*;
 
-    use super::{choose_log, walk_key, Accum, Near, GAMMA, LINEAR_MIN, OFFSETS};
+    use super::{choose_log, lane_offsets, walk_key, Accum, Near, GAMMA, LINEAR_MIN};
     use crate::fastmath::avx2::exp_neg8;
     use crate::fastmath::{LN2_HI, LN2_LO, LN_POLY};
     use crate::walk::{WalkInput, WalkParams};
@@ -1062,6 +1069,15 @@ mod avx2 {
         _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(bits), sel), sel)
     }
 
+    /// Neighbour index steps as one register (they fit in i32: [`fits`] bounds the tables).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn offsets8(o: [isize; 8]) -> __m256i {
+        let o = o.map(|v| v as i32);
+        // SAFETY: `o` holds 8 i32; unaligned load.
+        unsafe { _mm256_loadu_si256(o.as_ptr().cast()) }
+    }
+
     /// A 32-bit lane mask widened to two f64 masks (lanes 0–3, lanes 4–7).
     #[inline]
     #[target_feature(enable = "avx2")]
@@ -1136,27 +1152,9 @@ mod avx2 {
     ) -> u64 {
         let w = input.color.width();
         let side = win.side;
-        let goff = _mm256_setr_epi32(
-            OFFSETS[0].1 as i32 * side as i32 + OFFSETS[0].0 as i32,
-            OFFSETS[1].1 as i32 * side as i32 + OFFSETS[1].0 as i32,
-            OFFSETS[2].1 as i32 * side as i32 + OFFSETS[2].0 as i32,
-            OFFSETS[3].1 as i32 * side as i32 + OFFSETS[3].0 as i32,
-            OFFSETS[4].1 as i32 * side as i32 + OFFSETS[4].0 as i32,
-            OFFSETS[5].1 as i32 * side as i32 + OFFSETS[5].0 as i32,
-            OFFSETS[6].1 as i32 * side as i32 + OFFSETS[6].0 as i32,
-            OFFSETS[7].1 as i32 * side as i32 + OFFSETS[7].0 as i32,
-        );
-        let ioff = _mm256_setr_epi32(
-            OFFSETS[0].1 as i32 * w as i32 + OFFSETS[0].0 as i32,
-            OFFSETS[1].1 as i32 * w as i32 + OFFSETS[1].0 as i32,
-            OFFSETS[2].1 as i32 * w as i32 + OFFSETS[2].0 as i32,
-            OFFSETS[3].1 as i32 * w as i32 + OFFSETS[3].0 as i32,
-            OFFSETS[4].1 as i32 * w as i32 + OFFSETS[4].0 as i32,
-            OFFSETS[5].1 as i32 * w as i32 + OFFSETS[5].0 as i32,
-            OFFSETS[6].1 as i32 * w as i32 + OFFSETS[6].0 as i32,
-            OFFSETS[7].1 as i32 * w as i32 + OFFSETS[7].0 as i32,
-        );
-        let goff_arr: [isize; 8] = OFFSETS.map(|(dx, dy)| dy * side as isize + dx);
+        let goff_arr = lane_offsets(side);
+        let goff = offsets8(goff_arr);
+        let ioff = offsets8(lane_offsets(w));
         let ln_pmin = _mm256_set1_pd(params.p_min.ln());
         let walks = params.walks as usize;
         let total = walks * win.starts.len();
@@ -1450,7 +1448,7 @@ fn walk_unbounded(
 ) -> (Accum, u64) {
     let w = input.color.width();
     let i0 = y0 * w + x0;
-    let ioff: [isize; 8] = OFFSETS.map(|(dx, dy)| dy * w as isize + dx);
+    let ioff = lane_offsets(w);
     let ln_pmin = params.p_min.ln();
     let pkey = input.key(i0);
     let mut acc = Accum::new(input, i0, params);
