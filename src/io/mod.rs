@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
-use exr::prelude::{self as exrp, ReadChannels, ReadLayers, WritableImage};
+mod exr_file;
 
 use crate::buffers::{Buffers, FEATURE_BUFFERS};
 use crate::error::{Error, Result};
@@ -38,78 +38,7 @@ fn read_exr(path: &Path, channels: usize) -> Result<Image> {
     if !path.is_file() {
         return Err(Error::file(path, "file not found"));
     }
-    let read = exrp::read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .first_valid_layer()
-        .all_attributes();
-    // Render sets are read one file per thread (`load_render_set`). The crate's own parallel
-    // decoder starts a thread pool per file: worth it only for a large file, which would otherwise
-    // decode alone while the small ones are long done.
-    let large = std::fs::metadata(path).is_ok_and(|m| m.len() >= PARALLEL_DECODE_BYTES);
-    let image = if large && rayon::current_num_threads() > 1 {
-        read.from_file(path)
-    } else {
-        read.non_parallel().from_file(path)
-    }
-    .map_err(|e| Error::file(path, format!("not a readable EXR file ({e})")))?;
-    let layer = image.layer_data;
-    let (w, h) = (layer.size.width(), layer.size.height());
-    let list = &layer.channel_data.list;
-    let short = |name: &str| -> String {
-        let full = name.to_string();
-        full.rsplit('.').next().unwrap_or(&full).to_string()
-    };
-    let find = |wanted: &[&str]| {
-        wanted.iter().find_map(|want| {
-            list.iter()
-                .find(|ch| short(&ch.name.to_string()).eq_ignore_ascii_case(want))
-        })
-    };
-    let picked: Vec<_> = if channels == 3 {
-        let r = find(&["R", "X"]);
-        let g = find(&["G", "Y"]);
-        let b = find(&["B", "Z"]);
-        match (r, g, b) {
-            (Some(r), Some(g), Some(b)) => vec![r, g, b],
-            _ if list.len() == 1 => vec![&list[0]; 3],
-            _ => {
-                let names: Vec<String> = list.iter().map(|c| c.name.to_string()).collect();
-                return Err(Error::file(
-                    path,
-                    format!("has no R, G, B channels (found: {})", names.join(", ")),
-                ));
-            }
-        }
-    } else {
-        match find(&["Y", "Z", "R"]) {
-            Some(c) => vec![c],
-            None if list.len() == 1 => vec![&list[0]],
-            None => {
-                let names: Vec<String> = list.iter().map(|c| c.name.to_string()).collect();
-                return Err(Error::file(
-                    path,
-                    format!("has no Y, Z or R channel (found: {})", names.join(", ")),
-                ));
-            }
-        }
-    };
-    // f32 channels (what renderers write) are used in place; others are converted once.
-    let planes: Vec<std::borrow::Cow<[f32]>> = picked
-        .iter()
-        .map(|c| match &c.sample_data {
-            exrp::FlatSamples::F32(v) => std::borrow::Cow::Borrowed(v.as_slice()),
-            other => std::borrow::Cow::Owned(other.values_as_f32().collect()),
-        })
-        .collect();
-    let mut data = vec![0.0f32; w * h * channels];
-    for (k, plane) in planes.iter().enumerate() {
-        for (px, &v) in data.chunks_exact_mut(channels).zip(plane.iter()) {
-            px[k] = v;
-        }
-    }
-    Image::from_vec(w, h, channels, data).map_err(|e| Error::file(path, e))
+    exr_file::read(path, channels)
 }
 
 fn read_ldr(path: &Path, channels: usize) -> Result<Image> {
@@ -195,7 +124,7 @@ impl PendingOutput {
 
     /// Writes `image` as EXR and renames it into place.
     pub fn write_exr(self, image: &Image, compression: Compression) -> Result<()> {
-        let (w, h, c) = (image.width(), image.height(), image.channels());
+        let c = image.channels();
         let names: &[&str] = match c {
             1 => &["Y"],
             3 => &["R", "G", "B"],
@@ -207,50 +136,21 @@ impl PendingOutput {
                 ))
             }
         };
-        let channels: exrp::SmallVec<[exrp::AnyChannel<exrp::FlatSamples>; 4]> = names
-            .iter()
-            .enumerate()
-            .map(|(ci, name)| {
-                let plane: Vec<f32> = image.data().chunks_exact(c).map(|px| px[ci]).collect();
-                exrp::AnyChannel::new(*name, exrp::FlatSamples::F32(plane))
-            })
-            .collect();
-        let encoding = exrp::Encoding {
-            compression: match compression {
-                Compression::Zip => exrp::Compression::ZIP16,
-                Compression::Rle => exrp::Compression::RLE,
-            },
-            blocks: exrp::Blocks::ScanLines,
-            line_order: exrp::LineOrder::Increasing,
+        let compression = match compression {
+            Compression::Zip => exr_file::Compression::ZIP16,
+            Compression::Rle => exr_file::Compression::RLE,
         };
-        let layer = exrp::Layer::new(
-            (w, h),
-            exrp::LayerAttributes::default(),
-            encoding,
-            exrp::AnyChannels::sort(channels),
-        );
-        let out = exrp::Image::from_layer(layer);
-        {
-            let file = self
-                .tmp
-                .as_file()
-                .try_clone()
-                .map_err(|e| Error::output(&self.path, e))?;
-            let mut writer = BufWriter::new(file);
-            // The crate's parallel encoder starts a thread pool per call: worth it only for large
-            // images, and only when the caller's pool has threads to spare (`--threads 1` is one).
-            let write = out.write();
-            let write = if w * h >= PARALLEL_ENCODE_PIXELS && rayon::current_num_threads() > 1 {
-                write
-            } else {
-                write.non_parallel()
-            };
-            write
-                .to_buffered(&mut writer)
-                .map_err(|e| Error::output(&self.path, e))?;
-            use std::io::Write;
-            writer.flush().map_err(|e| Error::output(&self.path, e))?;
-        }
+        let file = self
+            .tmp
+            .as_file()
+            .try_clone()
+            .map_err(|e| Error::output(&self.path, e))?;
+        // Large writes: a 1 MP image is 12 MB, which 8 KiB buffers would send in 1500 calls.
+        let mut writer = BufWriter::with_capacity(1 << 20, file);
+        exr_file::write(&mut writer, image, names, compression)
+            .map_err(|e| Error::output(&self.path, e))?;
+        use std::io::Write;
+        writer.flush().map_err(|e| Error::output(&self.path, e))?;
         self.commit()
     }
 
@@ -291,12 +191,6 @@ fn find_buffer_file(dir: &Path, name: &str) -> Option<PathBuf> {
         .map(|ext| dir.join(format!("{name}.{ext}")))
         .find(|p| p.is_file())
 }
-
-/// Files at least this large are decoded with the exr crate's parallel decoder.
-const PARALLEL_DECODE_BYTES: u64 = 1 << 20;
-
-/// Images at least this large are compressed with the exr crate's parallel encoder.
-const PARALLEL_ENCODE_PIXELS: usize = 1 << 20;
 
 /// Loads a render set folder: `color` is required, feature buffers are optional.
 pub fn load_render_set(dir: &Path) -> Result<RenderSet> {
