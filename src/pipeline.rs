@@ -17,6 +17,7 @@
 use std::path::Path;
 use std::time::Instant;
 
+use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::buffers::Buffers;
@@ -295,7 +296,7 @@ pub const CALIBRATED_BRIGHTNESS: (f64, f64) = (0.05, 0.25);
 pub fn exposure_scale(color: &Image) -> f32 {
     let mut lum: Vec<f64> = color
         .data()
-        .chunks_exact(3)
+        .par_chunks_exact(3)
         .map(|p| 0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64)
         .collect();
     if lum.is_empty() {
@@ -303,8 +304,12 @@ pub fn exposure_scale(color: &Image) -> f32 {
     }
     let k = ((lum.len() - 1) as f64 * 0.99) as usize;
     let (_, &mut p99, _) = lum.select_nth_unstable_by(k, f64::total_cmp);
-    let kept: Vec<f64> = lum.iter().copied().filter(|&l| l <= p99).collect();
-    let mean = kept.iter().sum::<f64>() / kept.len().max(1) as f64;
+    // One sequential sum: its order (and so its rounding) does not depend on the thread count.
+    let (sum, kept) = lum
+        .iter()
+        .filter(|&&l| l <= p99)
+        .fold((0.0f64, 0usize), |(s, n), &l| (s + l, n + 1));
+    let mean = sum / kept.max(1) as f64;
     let (lo, hi) = CALIBRATED_BRIGHTNESS;
     if mean <= 0.0 || mean.is_nan() || (lo..=hi).contains(&mean) {
         1.0

@@ -106,27 +106,36 @@ pub fn sanitize(buffers: &mut Buffers) -> SanitizeReport {
         }
     }
     if let Some(img) = buffers.get_mut("normal") {
-        for n in img.data_mut().chunks_exact_mut(3) {
-            let len2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
-            if !len2.is_finite() || len2 < 1e-12 {
-                if n.iter().any(|v| *v != 0.0) || !len2.is_finite() {
-                    report.normal_unknown += 1;
+        report.normal_unknown += img
+            .data_mut()
+            .par_chunks_mut(3 << 14)
+            .map(|chunk| {
+                let mut unknown = 0;
+                for n in chunk.chunks_exact_mut(3) {
+                    let len2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
+                    if !len2.is_finite() || len2 < 1e-12 {
+                        if n.iter().any(|v| *v != 0.0) || !len2.is_finite() {
+                            unknown += 1;
+                        }
+                        n.fill(0.0);
+                    } else {
+                        // Averaged normals at an edge are shorter than 1; renormalising keeps F3 on
+                        // its scale.
+                        let inv = 1.0 / len2.sqrt();
+                        n.iter_mut().for_each(|v| *v *= inv);
+                    }
                 }
-                n.fill(0.0);
-            } else {
-                // Averaged normals at an edge are shorter than 1; renormalising keeps F3 on its scale.
-                let inv = 1.0 / len2.sqrt();
-                n.iter_mut().for_each(|v| *v *= inv);
-            }
-        }
+                unknown
+            })
+            .sum::<usize>();
     }
     if let Some(img) = buffers.get_mut("depth") {
         let max_finite = img
             .data()
-            .iter()
+            .par_iter()
             .copied()
             .filter(|v| v.is_finite() && *v >= 0.0)
-            .fold(0.0f32, f32::max);
+            .reduce(|| 0.0f32, f32::max);
         // Larger than every finite depth, so misses differ from every surface.
         let background = if max_finite > 0.0 {
             max_finite * 2.0

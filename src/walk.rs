@@ -443,10 +443,10 @@ pub fn strips(
 ///
 /// Why: features take 64 bytes a pixel, the largest per-pixel table of a run (268 MB at 4 MP).
 /// Windowed walks reach at most the window radius from their start row, so each strip needs only
-/// its rows plus that halo; the halo rows are denoised too and discarded (2r of every
-/// `strip_rows`). Keys use whole-image pixel indices and nothing a walk can reach differs, so the
-/// result is bit-identical to one whole-image run. Unbounded walks may reach any row: one strip.
-/// The steps returned count the work done, the halo rows' walks included.
+/// its rows' features plus that halo; walks start from the strip's own rows only. Keys use
+/// whole-image pixel indices and nothing a walk can reach differs, so the result and the step
+/// count are those of one whole-image run, bit for bit. Unbounded walks may reach any row: one
+/// strip.
 #[allow(clippy::too_many_arguments)]
 pub fn denoise_in_strips(
     color: &Image,
@@ -485,9 +485,9 @@ pub fn denoise_in_strips(
             level,
             origin: w * rows.start,
         };
-        let (part, part_stats) = denoise(&input, params, on_row);
-        let keep = 3 * w * (y0 - rows.start)..3 * w * (y1 - rows.start);
-        out.data_mut()[3 * w * y0..3 * w * y1].copy_from_slice(&part.data()[keep]);
+        let keep = y0 - rows.start..y1 - rows.start;
+        let (part, part_stats) = denoise_rows(Kernel::detect(), &input, params, keep, on_row);
+        out.data_mut()[3 * w * y0..3 * w * y1].copy_from_slice(part.data());
         stats.steps += part_stats.steps;
     }
     stats.walks = (w * h) as u64 * params.walks as u64;
@@ -540,15 +540,28 @@ pub fn denoise_with(
     params: &WalkParams,
     on_row: &(dyn Fn() + Sync),
 ) -> (Image, WalkStats) {
+    denoise_rows(kernel, input, params, 0..input.color.height(), on_row)
+}
+
+/// [`denoise_with`] for the start pixels of rows `starts` only: the result has `starts.len()`
+/// rows. Walks still reach every row of `input` (a strip's halo holds features, not work).
+pub fn denoise_rows(
+    kernel: Kernel,
+    input: &WalkInput,
+    params: &WalkParams,
+    starts: Range<usize>,
+    on_row: &(dyn Fn() + Sync),
+) -> (Image, WalkStats) {
     let kernel = if kernel.is_available() {
         kernel
     } else {
         Kernel::Scalar
     };
     let (w, h) = input.color.dims();
+    assert!(starts.end <= h, "start rows inside the image");
     let inv = inv_two_sigma2(params.sigma);
     let steps = AtomicU64::new(0);
-    let mut out = Image::new(w, h, 3);
+    let mut out = Image::new(w, starts.len(), 3);
     // The window is clipped to what a walk can reach: a larger one only costs time.
     let radius = params.window.map(|r| r.min(params.max_steps) as usize);
     // Unbounded walks may reach any row, so they share one whole-image table.
@@ -562,8 +575,8 @@ pub fn denoise_with(
         .enumerate()
         .for_each(|(band, rows)| {
             SCRATCH.with_borrow_mut(|scratch| {
-                let y_begin = band * BAND_ROWS;
-                let y_end = (y_begin + BAND_ROWS).min(h);
+                let y_begin = starts.start + band * BAND_ROWS;
+                let y_end = (y_begin + BAND_ROWS).min(starts.end);
                 // The rows a walk from this band can reach.
                 let halo = radius.map(|r| y_begin.saturating_sub(r)..(y_end + r).min(h));
                 let near = match &halo {
@@ -670,7 +683,7 @@ pub fn denoise_with(
             })
         });
     let stats = WalkStats {
-        walks: (w * h) as u64 * params.walks as u64,
+        walks: (w * starts.len()) as u64 * params.walks as u64,
         steps: steps.into_inner(),
     };
     (out, stats)

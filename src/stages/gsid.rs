@@ -169,12 +169,7 @@ pub fn run_gsid(
         .map(|(f, _)| f)
     };
     let walk_params = params.walk_params();
-    // Strips recompute their halo rows, so the bar counts every row the kernel finishes.
-    let rows_run: usize = walk::strips(color.height(), &walk_params, walk::STRIP_ROWS)
-        .iter()
-        .map(|(_, rows)| rows.len())
-        .sum();
-    let progress = Progress::new(ctx.progress, label, rows_run as u64);
+    let progress = Progress::new(ctx.progress, label, color.height() as u64);
     let (out, stats) = walk::denoise_in_strips(
         color,
         &features_for,
