@@ -2,6 +2,8 @@
 # Scaling and memory of `gsid denoise` on render sets tiled from a fixture (ALGORITHM.md §5 targets):
 #   - time per pixel at 1 MP and 4 MP (median of RUNS whole-process runs, all threads);
 #   - 1 thread against 2 threads at 1 MP (runs alternate; medians);
+#   - what two cores give at all: one 1-thread run alone against two independent 1-thread runs at once
+#     (a shared VM can give less than 2×; no threading in gsid can beat that ceiling);
 #   - peak resident memory (/usr/bin/time -v) at 4 MP, against the in-memory f32 size of the input buffers.
 # Usage: scripts/scaling.sh [PIPELINE] [RUNS] [FIXTURE_SET]   (defaults: balanced 5 fixtures/mitsuba-cornell/spp4)
 set -euo pipefail
@@ -42,6 +44,24 @@ threads_pair() {
   done >"$work/pairs"
 }
 
+# The machine's own ceiling: a 1-thread run alone, then two 1-thread runs side by side (the slower
+# of the two counts). Alternating again, so load changes fall on both.
+ceiling_pair() {
+  for _ in $(seq "$runs"); do
+    local start end
+    start=$(date +%s.%N)
+    target/release/gsid denoise "$work/1mp" --pipeline "$pipeline" -o "$work/a.exr" --quiet --threads 1
+    end=$(date +%s.%N)
+    echo "alone $(echo "$end - $start" | bc -l)"
+    start=$(date +%s.%N)
+    target/release/gsid denoise "$work/1mp" --pipeline "$pipeline" -o "$work/a.exr" --quiet --threads 1 &
+    target/release/gsid denoise "$work/1mp" --pipeline "$pipeline" -o "$work/b.exr" --quiet --threads 1
+    wait
+    end=$(date +%s.%N)
+    echo "side $(echo "$end - $start" | bc -l)"
+  done >"$work/ceiling"
+}
+
 t1=$(timed "$work/1mp")
 t4=$(timed "$work/4mp")
 threads_pair
@@ -52,6 +72,11 @@ printf '  1 MP (1024x1024): %.3f s = %.1f ns/pixel\n' "$t1" "$(echo "$t1 * 10000
 printf '  4 MP (2048x2048): %.3f s = %.1f ns/pixel (%.2fx the 1 MP time per pixel)\n' \
   "$t4" "$(echo "$t4 * 1000000000 / 4194304" | bc -l)" "$(echo "$t4 / 4 / $t1" | bc -l)"
 printf '  1 MP, 1 thread %.3f s, 2 threads %.3f s: %.2fx\n' "$t1_one" "$t1_two" "$(echo "$t1_one / $t1_two" | bc -l)"
+ceiling_pair
+alone=$(awk '$1 == "alone" {print $2}' "$work/ceiling" | median)
+side=$(awk '$1 == "side" {print $2}' "$work/ceiling" | median)
+printf '  ceiling: 1-thread run alone %.3f s, two side by side %.3f s: two cores give %.2fx\n' \
+  "$alone" "$side" "$(echo "2 * $alone / $side" | bc -l)"
 
 # Input buffers in memory: every channel of every buffer as f32.
 channels=$(for f in "$src"/*.exr; do
