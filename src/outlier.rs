@@ -337,7 +337,7 @@ pub fn repair(
     params: &DetectParams,
     action: Action,
 ) -> Image {
-    let mut out = color.clone();
+    let mut out = color.par_clone();
     if action == Action::Mask {
         return out;
     }

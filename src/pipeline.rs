@@ -322,7 +322,7 @@ pub fn exposure_scale(color: &Image) -> f32 {
 fn scale_buffers(buffers: &mut Buffers, factor: f32) {
     for name in ["color", OUTPUT_BUFFER] {
         if let Some(img) = buffers.get_mut(name) {
-            img.data_mut().iter_mut().for_each(|v| *v *= factor);
+            img.data_mut().par_iter_mut().for_each(|v| *v *= factor);
         }
     }
 }
@@ -356,12 +356,15 @@ impl Pipeline {
         if scale != 1.0 {
             scale_buffers(buffers, 1.0 / scale);
         }
-        let out = buffers.get(OUTPUT_BUFFER).cloned().ok_or_else(|| {
-            Error::buffer(
-                OUTPUT_BUFFER,
-                format!("pipeline {} never writes it", self.name),
-            )
-        })?;
+        let out = buffers
+            .get(OUTPUT_BUFFER)
+            .map(Image::par_clone)
+            .ok_or_else(|| {
+                Error::buffer(
+                    OUTPUT_BUFFER,
+                    format!("pipeline {} never writes it", self.name),
+                )
+            })?;
         let report = RunReport {
             pipeline: self.name.clone(),
             sanitized,

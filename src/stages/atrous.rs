@@ -116,7 +116,7 @@ impl Stage for AtrousStage {
             buffers.require(input)?;
             buffers.remove(input).expect("required above")
         } else {
-            buffers.require(input)?.clone()
+            buffers.require(input)?.par_clone()
         };
         if color.channels() != 3 {
             return Err(Error::buffer(
