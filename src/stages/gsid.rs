@@ -177,7 +177,7 @@ pub fn run_gsid(
         ctx.seed,
         ctx.level,
         &walk_params,
-        walk::STRIP_ROWS,
+        walk::strip_rows(color.width()),
         &|| progress.inc(1),
     )?;
     progress.finish();
