@@ -417,11 +417,10 @@ impl Near {
     }
 }
 
-/// Pixels per strip of [`denoise_in_strips`]: their features take 32 MB. A budget in pixels, not
-/// rows, so that the memory is the same at every width, and narrower images get fewer strips: each
-/// strip ends in a barrier where one thread waits for the other's last band (at 1 MP, four strips
-/// of 256 rows made the stage's 2-thread speed-up 1.68× against 1.84× for one strip).
-pub const STRIP_PIXELS: usize = 1 << 19;
+/// Pixels per strip of [`denoise_in_strips`]: their features take 8 MB, and two or three strips
+/// are alive at a time. A budget in pixels, not rows, so that the memory is the same at every
+/// width. (At 4 MP, strips of 16 MB made `full`'s peak 664–700 MB, of 8 MB 662–665 MB.)
+pub const STRIP_PIXELS: usize = 1 << 17;
 
 /// Rows per strip of [`denoise_in_strips`] for an image `width` pixels wide.
 pub fn strip_rows(width: usize) -> usize {
@@ -455,10 +454,16 @@ pub fn strips(
 /// whole-image pixel indices and nothing a walk can reach differs, so the result and the step
 /// count are those of one whole-image run, bit for bit. Unbounded walks may reach any row: one
 /// strip.
+///
+/// Strips do not end in a barrier: every thread takes the next task of one queue (build strip
+/// s + 1's features, placed [`LOOKAHEAD`] bands into strip s, or denoise a band), so while one
+/// thread builds the next strip the others finish this one. A strip's features are dropped when
+/// its last band is done: two strips' features are alive at a time (more only if a band of an
+/// older strip is still running when a build starts).
 #[allow(clippy::too_many_arguments)]
 pub fn denoise_in_strips(
     color: &Image,
-    features_for: &dyn Fn(Range<usize>) -> crate::error::Result<Features>,
+    features_for: &(dyn Fn(Range<usize>) -> crate::error::Result<Features> + Sync),
     mask: Option<&[bool]>,
     seed: u64,
     level: u32,
@@ -468,38 +473,172 @@ pub fn denoise_in_strips(
 ) -> crate::error::Result<(Image, WalkStats)> {
     let (w, h) = color.dims();
     let mut out = Image::new(w, h, 3);
-    let mut stats = WalkStats::default();
-    for (kept, rows) in strips(h, params, strip_rows) {
-        let (y0, y1) = (kept.start, kept.end);
-        let features = features_for(rows.clone())?;
-        let strip_color;
-        let sub = if rows == (0..h) {
-            color
-        } else {
-            strip_color = Image::from_vec(
-                w,
-                rows.len(),
-                3,
-                color.data()[3 * w * rows.start..3 * w * rows.end].to_vec(),
-            )
-            .expect("a strip of a 3-channel image");
-            &strip_color
-        };
+    let strips = strips(h, params, strip_rows);
+    let kernel = Kernel::detect();
+    let radius = params.window.map(|r| r.min(params.max_steps) as usize);
+    let band = Band {
+        kernel,
+        inv: inv_two_sigma2(params.sigma),
+        radius,
+        global: None,
+    };
+    if radius.is_none() || strips.len() <= 1 {
+        // One strip (unbounded walks share one whole-image table): the plain parallel run.
+        let features = features_for(0..h)?;
         let input = WalkInput {
-            color: sub,
+            color,
             features: &features,
-            mask: mask.map(|m| &m[w * rows.start..w * rows.end]),
+            mask,
             seed,
             level,
-            origin: w * rows.start,
+            origin: 0,
         };
-        let keep = y0 - rows.start..y1 - rows.start;
-        let (part, part_stats) = denoise_rows(Kernel::detect(), &input, params, keep, on_row);
-        out.data_mut()[3 * w * y0..3 * w * y1].copy_from_slice(part.data());
-        stats.steps += part_stats.steps;
+        return Ok(denoise_with(kernel, &input, params, on_row));
     }
-    stats.walks = (w * h) as u64 * params.walks as u64;
+
+    // The queue: build strip 0, then each strip's bands with the next strip's build among them.
+    let mut tasks = vec![Task::Build(0)];
+    for (s, (kept, _)) in strips.iter().enumerate() {
+        let ys: Vec<_> = kept.clone().step_by(BAND_ROWS).collect();
+        for (b, &y) in ys.iter().enumerate() {
+            if s + 1 < strips.len() && b == LOOKAHEAD.min(ys.len() - 1) {
+                tasks.push(Task::Build(s + 1));
+            }
+            tasks.push(Task::Band(s, y..(y + BAND_ROWS).min(kept.end)));
+        }
+    }
+    // Each band's output rows, handed to whichever thread takes the band.
+    let mut rest = out.data_mut();
+    let mut outputs = Vec::new();
+    for task in &tasks {
+        if let Task::Band(_, ys) = task {
+            let (head, tail) = std::mem::take(&mut rest).split_at_mut(3 * w * ys.len());
+            outputs.push(std::sync::Mutex::new(Some(head)));
+            rest = tail;
+        }
+    }
+    let slots: Vec<Slot> = strips
+        .iter()
+        .map(|(kept, _)| Slot {
+            state: std::sync::Mutex::new(StripState::Pending),
+            ready: std::sync::Condvar::new(),
+            bands_left: std::sync::atomic::AtomicUsize::new(kept.len().div_ceil(BAND_ROWS)),
+        })
+        .collect();
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let steps = AtomicU64::new(0);
+    let error = std::sync::Mutex::new(None);
+    let mut band_index: Vec<usize> = Vec::with_capacity(tasks.len());
+    let mut count = 0;
+    for task in &tasks {
+        band_index.push(count);
+        count += matches!(task, Task::Band(..)) as usize;
+    }
+    // One worker per pool thread. Broadcast jobs cannot be stolen, so a thread waiting inside a
+    // build's parallel loop never starts a second worker that would wait on that same build.
+    rayon::broadcast(|_| loop {
+        let t = next.fetch_add(1, Ordering::Relaxed);
+        let Some(task) = tasks.get(t) else { break };
+        match task {
+            Task::Build(s) => {
+                let rows = strips[*s].1.clone();
+                let state = match features_for(rows.clone()) {
+                    Ok(features) => {
+                        let color = Image::from_vec(
+                            w,
+                            rows.len(),
+                            3,
+                            color.data()[3 * w * rows.start..3 * w * rows.end].to_vec(),
+                        )
+                        .expect("a strip of a 3-channel image");
+                        StripState::Ready(std::sync::Arc::new(StripData { features, color }))
+                    }
+                    Err(e) => {
+                        error.lock().expect("no panic holding it").get_or_insert(e);
+                        StripState::Gone
+                    }
+                };
+                *slots[*s].state.lock().expect("no panic holding it") = state;
+                slots[*s].ready.notify_all();
+            }
+            Task::Band(s, ys) => {
+                let slot = &slots[*s];
+                let data = {
+                    let mut state = slot.state.lock().expect("no panic holding it");
+                    loop {
+                        match &*state {
+                            StripState::Pending => {
+                                state = slot.ready.wait(state).expect("no panic holding it")
+                            }
+                            StripState::Ready(data) => break Some(data.clone()),
+                            StripState::Gone => break None,
+                        }
+                    }
+                };
+                let Some(data) = data else { continue };
+                let rows = strips[*s].1.clone();
+                let input = WalkInput {
+                    color: &data.color,
+                    features: &data.features,
+                    mask: mask.map(|m| &m[w * rows.start..w * rows.end]),
+                    seed,
+                    level,
+                    origin: w * rows.start,
+                };
+                let dest = outputs[band_index[t]]
+                    .lock()
+                    .expect("no panic holding it")
+                    .take()
+                    .expect("each band is taken once");
+                let local = ys.start - rows.start..ys.end - rows.start;
+                let n = band.run(&input, params, local, dest, on_row);
+                steps.fetch_add(n, Ordering::Relaxed);
+                drop(data);
+                if slot.bands_left.fetch_sub(1, Ordering::AcqRel) == 1 {
+                    *slot.state.lock().expect("no panic holding it") = StripState::Gone;
+                }
+            }
+        }
+    });
+    if let Some(e) = error.into_inner().expect("no panic holding it") {
+        return Err(e);
+    }
+    let stats = WalkStats {
+        walks: (w * h) as u64 * params.walks as u64,
+        steps: steps.into_inner(),
+    };
     Ok((out, stats))
+}
+
+/// Bands of a strip denoised before the next strip's features start building: time for older
+/// strips' last bands to finish, so their features are gone before new ones are made.
+const LOOKAHEAD: usize = 2;
+
+/// A step of [`denoise_in_strips`]'s queue.
+enum Task {
+    /// Build strip s's features.
+    Build(usize),
+    /// Denoise the start pixels of these image rows of strip s.
+    Band(usize, Range<usize>),
+}
+
+/// What the bands of one strip read.
+struct StripData {
+    features: Features,
+    color: Image,
+}
+
+enum StripState {
+    Pending,
+    Ready(std::sync::Arc<StripData>),
+    /// The build failed, or every band is done (the features are dropped).
+    Gone,
+}
+
+struct Slot {
+    state: std::sync::Mutex<StripState>,
+    ready: std::sync::Condvar,
+    bands_left: std::sync::atomic::AtomicUsize,
 }
 
 /// Start-pixel rows per parallel task: the band's neighbour terms (with a window-radius halo) stay
@@ -582,119 +721,155 @@ pub fn denoise_rows(
         .par_chunks_mut(3 * w.max(1) * BAND_ROWS)
         .enumerate()
         .for_each(|(band, rows)| {
-            SCRATCH.with_borrow_mut(|scratch| {
-                let y_begin = starts.start + band * BAND_ROWS;
-                let y_end = (y_begin + BAND_ROWS).min(starts.end);
-                // The rows a walk from this band can reach.
-                let halo = radius.map(|r| y_begin.saturating_sub(r)..(y_end + r).min(h));
-                let near = match &halo {
-                    Some(rows) => {
-                        scratch.near.compute(kernel, input, inv, rows.clone());
-                        &scratch.near
-                    }
-                    None => global
-                        .as_ref()
-                        .expect("built above when there is no window"),
-                };
-                let pairs = match radius {
-                    Some(r) if scratch.pairs.compute(kernel, input, inv, r, y_begin..y_end) => {
-                        Some(&scratch.pairs)
-                    }
-                    _ => None,
-                };
-                let mut band_steps = 0u64;
-                // The AVX2 kernel runs windowed walks on bands its 32-bit indices cover.
-                #[cfg(target_arch = "x86_64")]
-                let vector = kernel == Kernel::Avx2 && radius.is_some() && avx2::fits(near);
-                #[cfg(not(target_arch = "x86_64"))]
-                let vector = false;
-                // Start pixels whose walks share the AVX2 kernel's lanes.
-                let batch = match vector {
-                    #[cfg(target_arch = "x86_64")]
-                    true => avx2::batch(params.walks),
-                    _ => 1,
-                };
-                let cells = radius.map_or(0, |r| (2 * r + 3) * (2 * r + 3));
-                scratch.grid.resize(batch * cells, 0.0);
-                scratch.egrid.resize(batch * cells, 0.0);
-                scratch.accs.resize(batch, Accum::default());
-                for y0 in y_begin..y_end {
-                    let row = &mut rows[3 * w * (y0 - y_begin)..3 * w * (y0 - y_begin + 1)];
-                    for x_begin in (0..w).step_by(batch) {
-                        let xs = x_begin..(x_begin + batch).min(w);
-                        let n = match radius {
-                            Some(r) => {
-                                scratch.starts.clear();
-                                for (b, x0) in xs.clone().enumerate() {
-                                    let cell = b * cells..(b + 1) * cells;
-                                    let win = Window::fill(
-                                        input,
-                                        inv,
-                                        &mut scratch.grid[cell.clone()],
-                                        &mut scratch.egrid[cell],
-                                        pairs,
-                                        r,
-                                        x0,
-                                        y0,
-                                    );
-                                    scratch.starts.push((b * cells + win.center(), win.i0));
-                                }
-                                match vector {
-                                    #[cfg(target_arch = "x86_64")]
-                                    // SAFETY: `vector` holds only if the CPU reported AVX2 above
-                                    // and `fits` holds for `near`.
-                                    true => unsafe {
-                                        avx2::walk_batch(
-                                            input,
-                                            params,
-                                            near,
-                                            avx2::Batch {
-                                                grid: &scratch.grid,
-                                                egrid: &scratch.egrid,
-                                                side: 2 * r + 3,
-                                                starts: &scratch.starts,
-                                            },
-                                            &mut scratch.parts,
-                                            &mut scratch.accs,
-                                        )
-                                    },
-                                    _ => {
-                                        let win = Window {
-                                            grid: &scratch.grid[..cells],
-                                            egrid: &scratch.egrid[..cells],
-                                            side: 2 * r + 3,
-                                            i0: y0 * w + xs.start,
-                                        };
-                                        let (acc, n) = walk_windowed(input, params, near, &win);
-                                        scratch.accs[0] = acc;
-                                        n
-                                    }
-                                }
-                            }
-                            None => {
-                                let (acc, n) =
-                                    walk_unbounded(input, params, near, inv, xs.start, y0);
-                                scratch.accs[0] = acc;
-                                n
-                            }
-                        };
-                        band_steps += n;
-                        for (b, x0) in xs.enumerate() {
-                            let i0 = y0 * w + x0;
-                            scratch.accs[b]
-                                .write(input.color.pixel(i0), &mut row[3 * x0..3 * x0 + 3]);
-                        }
-                    }
-                    on_row();
-                }
-                steps.fetch_add(band_steps, Ordering::Relaxed);
-            })
+            let y_begin = starts.start + band * BAND_ROWS;
+            let y_end = (y_begin + BAND_ROWS).min(starts.end);
+            let band = Band {
+                kernel,
+                inv,
+                radius,
+                global: global.as_ref(),
+            };
+            let n = band.run(input, params, y_begin..y_end, rows, on_row);
+            steps.fetch_add(n, Ordering::Relaxed);
         });
     let stats = WalkStats {
         walks: (w * starts.len()) as u64 * params.walks as u64,
         steps: steps.into_inner(),
     };
     (out, stats)
+}
+
+/// What every band of one kernel run shares.
+struct Band<'a> {
+    kernel: Kernel,
+    inv: f32,
+    /// Window radius clipped to the step cap; `None` for unbounded walks.
+    radius: Option<usize>,
+    /// The whole-image neighbour table of unbounded walks.
+    global: Option<&'a Near>,
+}
+
+impl Band<'_> {
+    /// Denoises the start pixels of image rows `ys` into `rows` (3 floats a pixel, row `ys.start`
+    /// first), with this thread's scratch tables; returns the steps taken.
+    fn run(
+        &self,
+        input: &WalkInput,
+        params: &WalkParams,
+        ys: Range<usize>,
+        rows: &mut [f32],
+        on_row: &(dyn Fn() + Sync),
+    ) -> u64 {
+        let Band {
+            kernel,
+            inv,
+            radius,
+            global,
+        } = *self;
+        let (w, h) = input.color.dims();
+        let (y_begin, y_end) = (ys.start, ys.end);
+        SCRATCH.with_borrow_mut(|scratch| {
+            // The rows a walk from this band can reach.
+            let halo = radius.map(|r| y_begin.saturating_sub(r)..(y_end + r).min(h));
+            let near = match &halo {
+                Some(rows) => {
+                    scratch.near.compute(kernel, input, inv, rows.clone());
+                    &scratch.near
+                }
+                None => global.expect("built above when there is no window"),
+            };
+            let pairs = match radius {
+                Some(r) if scratch.pairs.compute(kernel, input, inv, r, y_begin..y_end) => {
+                    Some(&scratch.pairs)
+                }
+                _ => None,
+            };
+            let mut band_steps = 0u64;
+            // The AVX2 kernel runs windowed walks on bands its 32-bit indices cover.
+            #[cfg(target_arch = "x86_64")]
+            let vector = kernel == Kernel::Avx2 && radius.is_some() && avx2::fits(near);
+            #[cfg(not(target_arch = "x86_64"))]
+            let vector = false;
+            // Start pixels whose walks share the AVX2 kernel's lanes.
+            let batch = match vector {
+                #[cfg(target_arch = "x86_64")]
+                true => avx2::batch(params.walks),
+                _ => 1,
+            };
+            let cells = radius.map_or(0, |r| (2 * r + 3) * (2 * r + 3));
+            scratch.grid.resize(batch * cells, 0.0);
+            scratch.egrid.resize(batch * cells, 0.0);
+            scratch.accs.resize(batch, Accum::default());
+            for y0 in y_begin..y_end {
+                let row = &mut rows[3 * w * (y0 - y_begin)..3 * w * (y0 - y_begin + 1)];
+                for x_begin in (0..w).step_by(batch) {
+                    let xs = x_begin..(x_begin + batch).min(w);
+                    let n = match radius {
+                        Some(r) => {
+                            scratch.starts.clear();
+                            for (b, x0) in xs.clone().enumerate() {
+                                let cell = b * cells..(b + 1) * cells;
+                                let win = Window::fill(
+                                    input,
+                                    inv,
+                                    &mut scratch.grid[cell.clone()],
+                                    &mut scratch.egrid[cell],
+                                    pairs,
+                                    r,
+                                    x0,
+                                    y0,
+                                );
+                                scratch.starts.push((b * cells + win.center(), win.i0));
+                            }
+                            match vector {
+                                #[cfg(target_arch = "x86_64")]
+                                // SAFETY: `vector` holds only if the CPU reported AVX2 above
+                                // and `fits` holds for `near`.
+                                true => unsafe {
+                                    avx2::walk_batch(
+                                        input,
+                                        params,
+                                        near,
+                                        avx2::Batch {
+                                            grid: &scratch.grid,
+                                            egrid: &scratch.egrid,
+                                            side: 2 * r + 3,
+                                            starts: &scratch.starts,
+                                        },
+                                        &mut scratch.parts,
+                                        &mut scratch.accs,
+                                    )
+                                },
+                                _ => {
+                                    let win = Window {
+                                        grid: &scratch.grid[..cells],
+                                        egrid: &scratch.egrid[..cells],
+                                        side: 2 * r + 3,
+                                        i0: y0 * w + xs.start,
+                                    };
+                                    let (acc, n) = walk_windowed(input, params, near, &win);
+                                    scratch.accs[0] = acc;
+                                    n
+                                }
+                            }
+                        }
+                        None => {
+                            let (acc, n) = walk_unbounded(input, params, near, inv, xs.start, y0);
+                            scratch.accs[0] = acc;
+                            n
+                        }
+                    };
+                    band_steps += n;
+                    for (b, x0) in xs.enumerate() {
+                        let i0 = y0 * w + x0;
+                        scratch.accs[b].write(input.color.pixel(i0), &mut row[3 * x0..3 * x0 + 3]);
+                    }
+                }
+                on_row();
+            }
+            band_steps
+        })
+    }
 }
 
 /// The x0 terms of a band's start pixels, each pixel pair computed once: for every offset o of

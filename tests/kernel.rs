@@ -232,12 +232,27 @@ fn strips_equal_one_whole_image_run() {
                 origin: 0,
             };
             let (want, want_stats) = denoise(&whole, &params, &|| {});
-            for strip_rows in [1, 3, 8, 40, 100] {
-                let (got, stats) =
-                    denoise_in_strips(color, &features_for, m, 3, 1, &params, strip_rows, &|| {})
-                        .unwrap();
+            for (strip_rows, threads) in [(1, 2), (3, 1), (8, 3), (40, 2), (100, 2)] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let (got, stats) = pool
+                    .install(|| {
+                        denoise_in_strips(
+                            color,
+                            &features_for,
+                            m,
+                            3,
+                            1,
+                            &params,
+                            strip_rows,
+                            &|| {},
+                        )
+                    })
+                    .unwrap();
                 let case = format!(
-                    "window {window:?}, strips of {strip_rows}, mask {}",
+                    "window {window:?}, strips of {strip_rows}, {threads} threads, mask {}",
                     m.is_some()
                 );
                 assert_eq!(bits(&got), bits(&want), "{case}");
@@ -245,5 +260,36 @@ fn strips_equal_one_whole_image_run() {
                 assert_eq!(stats, want_stats, "{case}");
             }
         }
+    }
+}
+
+/// A strip whose features cannot be built fails the run with that error, on any thread count,
+/// without waiting forever on the strip.
+#[test]
+fn a_failed_strip_is_an_error_not_a_hang() {
+    let (w, h) = (9, 30);
+    let set = synthetic_set(w, h);
+    let color = set.get("color").unwrap();
+    let weights = Weights::default();
+    let features_for = |rows: std::ops::Range<usize>| {
+        if rows.contains(&15) {
+            return Err(gsid::Error::buffer("albedo", "broken for this test"));
+        }
+        Features::build_rows(color, &set, &weights, Tone::Reinhard, 1.0, rows).map(|(f, _)| f)
+    };
+    let params = WalkParams {
+        walks: 2,
+        window: Some(2),
+        ..WalkParams::default()
+    };
+    for threads in [1, 2, 4] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let result = pool
+            .install(|| denoise_in_strips(color, &features_for, None, 1, 0, &params, 4, &|| {}));
+        let err = result.expect_err("the broken strip fails the run");
+        assert!(err.to_string().contains("broken for this test"), "{err}");
     }
 }
