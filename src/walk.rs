@@ -628,6 +628,7 @@ struct StripData {
     color: Image,
 }
 
+/// Where a strip's features stand; bands of the strip wait on [`Slot::ready`] while `Pending`.
 enum StripState {
     Pending,
     Ready(std::sync::Arc<StripData>),
@@ -635,6 +636,7 @@ enum StripState {
     Gone,
 }
 
+/// One strip's shared state in [`denoise_in_strips`]'s queue.
 struct Slot {
     state: std::sync::Mutex<StripState>,
     ready: std::sync::Condvar,
