@@ -507,16 +507,22 @@ pub fn denoise_in_strips(
             tasks.push(Task::Band(s, y..(y + BAND_ROWS).min(kept.end)));
         }
     }
-    // Each band's output rows, handed to whichever thread takes the band.
+    // Each band's output rows, by task index, handed to whichever thread takes the band.
     let mut rest = out.data_mut();
-    let mut outputs = Vec::new();
-    for task in &tasks {
-        if let Task::Band(_, ys) = task {
-            let (head, tail) = std::mem::take(&mut rest).split_at_mut(3 * w * ys.len());
-            outputs.push(std::sync::Mutex::new(Some(head)));
-            rest = tail;
-        }
-    }
+    let outputs: Vec<_> = tasks
+        .iter()
+        .map(|task| {
+            let rows = match task {
+                Task::Band(_, ys) => {
+                    let (head, tail) = std::mem::take(&mut rest).split_at_mut(3 * w * ys.len());
+                    rest = tail;
+                    Some(head)
+                }
+                Task::Build(_) => None,
+            };
+            std::sync::Mutex::new(rows)
+        })
+        .collect();
     let slots: Vec<Slot> = strips
         .iter()
         .map(|(kept, _)| Slot {
@@ -528,12 +534,6 @@ pub fn denoise_in_strips(
     let next = std::sync::atomic::AtomicUsize::new(0);
     let steps = AtomicU64::new(0);
     let error = std::sync::Mutex::new(None);
-    let mut band_index: Vec<usize> = Vec::with_capacity(tasks.len());
-    let mut count = 0;
-    for task in &tasks {
-        band_index.push(count);
-        count += matches!(task, Task::Band(..)) as usize;
-    }
     // One worker per pool thread. Broadcast jobs cannot be stolen, so a thread waiting inside a
     // build's parallel loop never starts a second worker that would wait on that same build.
     rayon::broadcast(|_| loop {
@@ -585,7 +585,7 @@ pub fn denoise_in_strips(
                     level,
                     origin: w * rows.start,
                 };
-                let dest = outputs[band_index[t]]
+                let dest = outputs[t]
                     .lock()
                     .expect("no panic holding it")
                     .take()

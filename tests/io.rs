@@ -8,21 +8,31 @@ use gsid::pipeline::PipelineSpec;
 use gsid::{io, Image};
 use proptest::prelude::*;
 
-fn write_channels(path: &Path, w: usize, h: usize, channels: Vec<(&str, FlatSamples)>) {
-    let list: SmallVec<[AnyChannel<FlatSamples>; 4]> = channels
-        .into_iter()
-        .map(|(n, s)| AnyChannel::new(n, s))
-        .collect();
+/// Writes one layer with the exr crate's own image-level writer.
+fn write_layer(
+    path: &Path,
+    size: (usize, usize),
+    encoding: Encoding,
+    list: SmallVec<[AnyChannel<FlatSamples>; 4]>,
+) {
     let layer = Layer::new(
-        (w, h),
+        size,
         LayerAttributes::default(),
-        Encoding::FAST_LOSSLESS,
+        encoding,
         AnyChannels::sort(list),
     );
     exr::prelude::Image::from_layer(layer)
         .write()
         .to_file(path)
         .unwrap();
+}
+
+fn write_channels(path: &Path, w: usize, h: usize, channels: Vec<(&str, FlatSamples)>) {
+    let list = channels
+        .into_iter()
+        .map(|(n, s)| AnyChannel::new(n, s))
+        .collect();
+    write_layer(path, (w, h), Encoding::FAST_LOSSLESS, list);
 }
 
 #[test]
@@ -105,17 +115,7 @@ fn crate_written(path: &Path, img: &Image, compression: Compression) {
         blocks: Blocks::ScanLines,
         line_order: LineOrder::Increasing,
     };
-    let layer = Layer::new(
-        img.dims(),
-        LayerAttributes::default(),
-        encoding,
-        AnyChannels::sort(list),
-    );
-    exr::prelude::Image::from_layer(layer)
-        .write()
-        .non_parallel()
-        .to_file(path)
-        .unwrap();
+    write_layer(path, img.dims(), encoding, list);
 }
 
 #[test]
@@ -205,16 +205,7 @@ fn tiled_mixed_sample_and_mip_mapped_files_read_exactly() {
             blocks,
             line_order,
         };
-        let layer = Layer::new(
-            (w, h),
-            LayerAttributes::default(),
-            encoding,
-            AnyChannels::sort(channels()),
-        );
-        exr::prelude::Image::from_layer(layer)
-            .write()
-            .to_file(&path)
-            .unwrap();
+        write_layer(&path, (w, h), encoding, channels());
         assert_eq!(
             io::read_image(&path, 3).unwrap(),
             want,
@@ -288,8 +279,7 @@ proptest! {
                 .map(|k| AnyChannel::new(["R", "G", "B"][k], FlatSamples::F32((0..16 * 8).map(|i| (i * k) as f32).collect())))
                 .collect();
             let encoding = Encoding { compression: Compression::ZIP1, blocks: Blocks::Tiles(Vec2(4, 4)), line_order: LineOrder::Increasing };
-            let layer = Layer::new((16, 8), LayerAttributes::default(), encoding, AnyChannels::sort(list));
-            exr::prelude::Image::from_layer(layer).write().to_file(&path).unwrap();
+            write_layer(&path, (16, 8), encoding, list);
         } else {
             io::write_exr(&path, &Image::from_fn(16, 8, 3, |x, y, c| (x * y + c) as f32)).unwrap();
         }

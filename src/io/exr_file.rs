@@ -25,6 +25,7 @@ pub use exr::prelude::Compression;
 pub fn read(path: &Path, channels: usize) -> Result<Image> {
     let bad = |e: exr::error::Error| Error::file(path, format!("not a readable EXR file ({e})"));
     let file = std::fs::File::open(path).map_err(|e| Error::file(path, e))?;
+    let file_len = file.metadata().map_err(|e| Error::file(path, e))?.len();
     let reader = block::read(BufReader::new(file), false).map_err(bad)?;
     let meta = reader.meta_data().clone();
     let layer = meta
@@ -47,9 +48,6 @@ pub fn read(path: &Path, channels: usize) -> Result<Image> {
     // A damaged header can declare gigapixels in a small file, and every block is allocated at
     // its declared size before its data is checked. No codec the crate reads packs more than about
     // 1000 bytes of samples into one byte (deflate's limit), so a larger claim is an error.
-    let file_len = std::fs::metadata(path)
-        .map_err(|e| Error::file(path, e))?
-        .len();
     let declared = (header.layer_size.x() as u128)
         * (header.layer_size.y() as u128)
         * (header.channels.bytes_per_pixel as u128);
