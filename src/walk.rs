@@ -671,9 +671,11 @@ struct Scratch {
     egrid: Vec<f32>,
     /// Per batch pixel: (grid cell of its centre, pixel index).
     starts: Vec<(usize, usize)>,
-    /// Per walk sums of a batch, and per pixel results.
-    parts: Vec<Accum>,
+    /// Per pixel results of a batch.
     accs: Vec<Accum>,
+    /// The AVX2 kernel's per-walk tables.
+    #[cfg(target_arch = "x86_64")]
+    walks: avx2::Walks,
     near: Near,
     pairs: Pairs,
 }
@@ -838,7 +840,7 @@ impl Band<'_> {
                                             side: 2 * r + 3,
                                             starts: &scratch.starts,
                                         },
-                                        &mut scratch.parts,
+                                        &mut scratch.walks,
                                         &mut scratch.accs,
                                     )
                                 },
@@ -1114,9 +1116,14 @@ mod avx2 {
     //! and then the prefix sum, the pick, ln of the normaliser, the f64 log-probability, the weight
     //! and the colour sums are each a handful of instructions for all eight walks. When a walk ends
     //! its lane takes the next walk of the batch, which may belong to the next start pixel, so
-    //! lanes seldom idle. Every operation mirrors the scalar spec (the same IEEE operations in the
-    //! same order, the random numbers from the same integer arithmetic), so the results are
-    //! bit-identical.
+    //! lanes seldom idle.
+    //!
+    //! A step is one chain of dependent operations (where a walk stands decides what it loads
+    //! next), so the walk loop does only what the next step needs; the weights and colour sums run
+    //! after it, in [`weigh`], from a record of every step, where nothing waits on the walks.
+    //!
+    //! Every operation mirrors the scalar spec (the same IEEE operations in the same order, the
+    //! random numbers from the same integer arithmetic), so the results are bit-identical.
 
     use std::arch::x86_64::*;
 
@@ -1329,8 +1336,102 @@ mod avx2 {
         pixel: [i32; SLOTS],
         step: [i32; SLOTS],
         ctr: [u64; SLOTS],
-        sum: [[f64; SLOTS]; 3],
-        weight: [f64; SLOTS],
+    }
+
+    /// What one step of the walk loop leaves for [`weigh`]: per lane the pixel a walk stands on,
+    /// its log-probability and step count, and which walks moved and which ended.
+    #[derive(Clone, Copy)]
+    struct Record {
+        pixel: [i32; SLOTS],
+        log_p: [f64; SLOTS],
+        step: [i32; SLOTS],
+        going: i32,
+        ended: i32,
+    }
+
+    /// Per-batch scratch of [`walk_batch`], reused from batch to batch.
+    #[derive(Default)]
+    pub(super) struct Walks {
+        /// Each walk's sums, merged per start pixel in walk order at the end.
+        parts: Vec<Accum>,
+        records: Vec<Record>,
+        /// The jobs of the walks that ended, in the order they ended.
+        ends: Vec<usize>,
+    }
+
+    /// The second loop of [`walk_batch`]: each step's weight exp(L_k / k) (in f32 as the spec
+    /// rounds it) and the colour sums, lane by lane in the order the walk loop took the steps,
+    /// so every sum is the spec's, bit for bit. Nothing here feeds back into the walks, so the
+    /// steps overlap each other.
+    #[target_feature(enable = "avx2")]
+    unsafe fn weigh(records: &[Record], ends: &[usize], color: *const f32, parts: &mut [Accum]) {
+        let mut sum = [[_mm256_setzero_pd(); 2]; 3];
+        let mut weight = [_mm256_setzero_pd(); 2];
+        let mut ends = ends.iter();
+        for rec in records {
+            let going_v = lanes(rec.going);
+            let moved = widen(going_v);
+            let step = _mm256_loadu_si256(rec.step.as_ptr().cast());
+            let log_p = [
+                _mm256_loadu_pd(rec.log_p.as_ptr()),
+                _mm256_loadu_pd(rec.log_p[4..].as_ptr()),
+            ];
+            let step_pd = [
+                _mm256_cvtepi32_pd(_mm256_castsi256_si128(step)),
+                _mm256_cvtepi32_pd(_mm256_extracti128_si256::<1>(step)),
+            ];
+            let ratio = _mm256_set_m128(
+                _mm256_cvtpd_ps(_mm256_div_pd(log_p[1], step_pd[1])),
+                _mm256_cvtpd_ps(_mm256_div_pd(log_p[0], step_pd[0])),
+            );
+            // Lanes that did not move may hold 0/0: they get exp(0), masked below.
+            let ratio = _mm256_and_ps(ratio, _mm256_castsi256_ps(going_v));
+            let wgt = to_f64(exp_neg8(ratio));
+            let wgt = [
+                _mm256_and_pd(wgt[0], moved[0]),
+                _mm256_and_pd(wgt[1], moved[1]),
+            ];
+            let pixel = _mm256_loadu_si256(rec.pixel.as_ptr().cast());
+            let at3 = _mm256_mullo_epi32(pixel, _mm256_set1_epi32(3));
+            for (ch, acc) in sum.iter_mut().enumerate() {
+                let col = to_f64(_mm256_i32gather_ps::<4>(
+                    color.add(ch),
+                    _mm256_blendv_epi8(_mm256_setzero_si256(), at3, going_v),
+                ));
+                for h in 0..2 {
+                    acc[h] = add_where(acc[h], _mm256_mul_pd(wgt[h], col[h]), moved[h]);
+                }
+            }
+            for h in 0..2 {
+                weight[h] = add_where(weight[h], wgt[h], moved[h]);
+            }
+            if rec.ended != 0 {
+                let mut sums = [[0.0f64; SLOTS]; 4];
+                for h in 0..2 {
+                    _mm256_storeu_pd(sums[3][4 * h..].as_mut_ptr(), weight[h]);
+                    for ch in 0..3 {
+                        _mm256_storeu_pd(sums[ch][4 * h..].as_mut_ptr(), sum[ch][h]);
+                    }
+                }
+                let mut bits = rec.ended;
+                while bits != 0 {
+                    let s = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    let job = *ends.next().expect("one job per ended walk");
+                    parts[job] = Accum {
+                        sum: [sums[0][s], sums[1][s], sums[2][s]],
+                        weight: sums[3][s],
+                    };
+                }
+                let reset = widen(lanes(rec.ended));
+                for h in 0..2 {
+                    weight[h] = _mm256_andnot_pd(reset[h], weight[h]);
+                    for ch in 0..3 {
+                        sum[ch][h] = _mm256_andnot_pd(reset[h], sum[ch][h]);
+                    }
+                }
+            }
+        }
     }
 
     /// `super::walk_windowed` for every start pixel of `win`, bit for bit, their walks sharing the
@@ -1345,7 +1446,7 @@ mod avx2 {
         params: &WalkParams,
         near: &Near,
         win: Batch,
-        parts: &mut Vec<Accum>,
+        scratch: &mut Walks,
         accs: &mut [Accum],
     ) -> u64 {
         let w = input.color.width();
@@ -1360,8 +1461,15 @@ mod avx2 {
             win.starts.len() <= BATCH_WALKS,
             "batch larger than `batch` gives"
         );
+        let Walks {
+            parts,
+            records,
+            ends,
+        } = scratch;
         parts.clear();
         parts.resize(total, Accum::default());
+        records.clear();
+        ends.clear();
         if total == 0 {
             return 0;
         }
@@ -1389,8 +1497,6 @@ mod avx2 {
             pixel: [0; SLOTS],
             step: [0; SLOTS],
             ctr: [0; SLOTS],
-            sum: [[0.0; SLOTS]; 3],
-            weight: [0.0; SLOTS],
         };
         // Lanes without a walk sit on the first walk's start cell, so their loads stay in bounds.
         let mut live = 0i32;
@@ -1415,8 +1521,6 @@ mod avx2 {
             _mm256_loadu_si256(st.ctr[4..].as_ptr().cast()),
         ];
         let mut log_p = [_mm256_setzero_pd(); 2];
-        let mut sum = [[_mm256_setzero_pd(); 2]; 3];
-        let mut weight = [_mm256_setzero_pd(); 2];
         while live != 0 {
             let u = uniform8(ctr);
             // Each walk's 8 neighbour weights, one register per walk, then one per neighbour.
@@ -1540,55 +1644,34 @@ mod avx2 {
                     _mm256_and_si256(gamma, _mm256_castpd_si256(moved[h])),
                 );
             }
-            // The weight exp(L_k / k), in f32 as the spec rounds it.
-            let step_pd = [
-                _mm256_cvtepi32_pd(_mm256_castsi256_si128(step)),
-                _mm256_cvtepi32_pd(_mm256_extracti128_si256::<1>(step)),
-            ];
-            let ratio = _mm256_set_m128(
-                _mm256_cvtpd_ps(_mm256_div_pd(new_log_p[1], step_pd[1])),
-                _mm256_cvtpd_ps(_mm256_div_pd(new_log_p[0], step_pd[0])),
-            );
-            let wgt = to_f64(exp_neg8(ratio));
-            let wgt = [
-                _mm256_and_pd(wgt[0], moved[0]),
-                _mm256_and_pd(wgt[1], moved[1]),
-            ];
-            let at3 = _mm256_mullo_epi32(pixel, _mm256_set1_epi32(3));
-            for (ch, acc) in sum.iter_mut().enumerate() {
-                let col = to_f64(_mm256_i32gather_ps::<4>(
-                    color.add(ch),
-                    _mm256_blendv_epi8(_mm256_setzero_si256(), at3, going_v),
-                ));
-                for h in 0..2 {
-                    acc[h] = add_where(acc[h], _mm256_mul_pd(wgt[h], col[h]), moved[h]);
-                }
-            }
+            // The weights and colour sums wait for the second loop: off this loop's chain of
+            // dependent steps, they run at the vector units' full rate there.
+            let mut rec = Record {
+                pixel: [0; SLOTS],
+                log_p: [0.0; SLOTS],
+                step: [0; SLOTS],
+                going,
+                ended: live & !going,
+            };
+            _mm256_storeu_si256(rec.pixel.as_mut_ptr().cast(), pixel);
+            _mm256_storeu_si256(rec.step.as_mut_ptr().cast(), step);
             for h in 0..2 {
-                weight[h] = add_where(weight[h], wgt[h], moved[h]);
+                _mm256_storeu_pd(rec.log_p[4 * h..].as_mut_ptr(), new_log_p[h]);
                 log_p[h] = _mm256_blendv_pd(log_p[h], new_log_p[h], moved[h]);
             }
-            // Ended walks hand in their sums; their lane takes the next walk. Only the sums go
-            // through memory; the resets are blends, and the new walks' starts one blend per field.
-            let ended = live & !going;
+            records.push(rec);
+            // Ended walks hand in their steps; their lane takes the next walk. The resets are
+            // blends, and the new walks' starts one blend per field.
+            let ended = rec.ended;
             if ended != 0 {
                 _mm256_storeu_si256(st.step.as_mut_ptr().cast(), step);
-                for h in 0..2 {
-                    _mm256_storeu_pd(st.weight[4 * h..].as_mut_ptr(), weight[h]);
-                    for ch in 0..3 {
-                        _mm256_storeu_pd(st.sum[ch][4 * h..].as_mut_ptr(), sum[ch][h]);
-                    }
-                }
                 let mut refilled = 0i32;
                 let mut bits = ended;
                 while bits != 0 {
                     let s = bits.trailing_zeros() as usize;
                     bits &= bits - 1;
                     steps += st.step[s] as u64;
-                    parts[st.job[s]] = Accum {
-                        sum: [st.sum[0][s], st.sum[1][s], st.sum[2][s]],
-                        weight: st.weight[s],
-                    };
+                    ends.push(st.job[s]);
                     if next < total {
                         (st.cell[s], st.pixel[s], st.ctr[s]) = start(next);
                         st.job[s] = next;
@@ -1603,10 +1686,6 @@ mod avx2 {
                 step = _mm256_andnot_si256(ended_v, step);
                 for h in 0..2 {
                     log_p[h] = _mm256_andnot_pd(reset[h], log_p[h]);
-                    weight[h] = _mm256_andnot_pd(reset[h], weight[h]);
-                    for ch in 0..3 {
-                        sum[ch][h] = _mm256_andnot_pd(reset[h], sum[ch][h]);
-                    }
                 }
                 if refilled != 0 {
                     let fresh = lanes(refilled);
@@ -1624,6 +1703,7 @@ mod avx2 {
                 }
             }
         }
+        weigh(records, ends, color, parts);
         for (b, &(_, i0)) in win.starts.iter().enumerate() {
             let mut acc = Accum::new(input, i0, params);
             for part in &parts[b * walks..(b + 1) * walks] {
