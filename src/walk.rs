@@ -1274,6 +1274,14 @@ mod avx2 {
         _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(bits), sel), sel)
     }
 
+    /// 8 lanes of i32 from memory.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn load_lanes(a: &[i32; SLOTS]) -> __m256i {
+        // SAFETY: `a` holds 8 i32; unaligned load.
+        unsafe { _mm256_loadu_si256(a.as_ptr().cast()) }
+    }
+
     /// Neighbour index steps as one register (they fit in i32: [`fits`] bounds the tables).
     #[inline]
     #[target_feature(enable = "avx2")]
@@ -1512,10 +1520,9 @@ mod avx2 {
         }
         let mut steps = 0u64;
         let max_steps = _mm256_set1_epi32(params.max_steps.min(i32::MAX as u32) as i32);
-        let load_i = |a: &[i32; SLOTS]| _mm256_loadu_si256(a.as_ptr().cast());
-        let mut cell = load_i(&st.cell);
-        let mut pixel = load_i(&st.pixel);
-        let mut step = load_i(&st.step);
+        let mut cell = load_lanes(&st.cell);
+        let mut pixel = load_lanes(&st.pixel);
+        let mut step = load_lanes(&st.step);
         let mut ctr = [
             _mm256_loadu_si256(st.ctr.as_ptr().cast()),
             _mm256_loadu_si256(st.ctr[4..].as_ptr().cast()),
@@ -1526,10 +1533,12 @@ mod avx2 {
             // Each walk's 8 neighbour weights, one register per walk, then one per neighbour.
             _mm256_storeu_si256(st.cell.as_mut_ptr().cast(), cell);
             _mm256_storeu_si256(st.pixel.as_mut_ptr().cast(), pixel);
-            let rows: [__m256; 8] = std::array::from_fn(|s| {
+            // A plain loop: a closure here may be left out of line, a call per walk.
+            let mut rows = [_mm256_setzero_ps(); SLOTS];
+            for (s, row) in rows.iter_mut().enumerate() {
                 let e = _mm256_loadu_ps(lin.add(8 * st.pixel[s] as usize));
-                _mm256_mul_ps(window_block(egrid, st.cell[s] as usize, side), e)
-            });
+                *row = _mm256_mul_ps(window_block(egrid, st.cell[s] as usize, side), e);
+            }
             let l = transpose8(rows);
             // `super::prefix8`, vertically.
             let c3 = _mm256_add_ps(_mm256_add_ps(l[3], l[2]), _mm256_add_ps(l[1], l[0]));
@@ -1689,8 +1698,8 @@ mod avx2 {
                 }
                 if refilled != 0 {
                     let fresh = lanes(refilled);
-                    cell = _mm256_blendv_epi8(cell, load_i(&st.cell), fresh);
-                    pixel = _mm256_blendv_epi8(pixel, load_i(&st.pixel), fresh);
+                    cell = _mm256_blendv_epi8(cell, load_lanes(&st.cell), fresh);
+                    pixel = _mm256_blendv_epi8(pixel, load_lanes(&st.pixel), fresh);
                     let fresh = widen(fresh);
                     for h in 0..2 {
                         let new = _mm256_loadu_si256(st.ctr[4 * h..].as_ptr().cast());
