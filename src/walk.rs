@@ -884,6 +884,9 @@ impl Band<'_> {
 #[derive(Default)]
 struct Pairs {
     offsets: Vec<(isize, isize)>,
+    /// Per offset (dx, dy): where its plane starts in `log` and `lin`, and its step dy·w + dx in
+    /// pixels, and dy·side + dx in window grid cells (side = 2r + 3).
+    steps: Vec<(usize, usize, usize)>,
     first_row: usize,
     rows: usize,
     width: usize,
@@ -961,6 +964,16 @@ impl Pairs {
                 exp_neg_row(kernel, e);
             }
         }
+        let side = 2 * ri + 3;
+        self.steps.clear();
+        self.steps
+            .extend(offsets.iter().enumerate().map(|(o, &(dx, dy))| {
+                (
+                    o * rows * w,
+                    (dy * w as isize + dx) as usize,
+                    (dy * side + dx) as usize,
+                )
+            }));
         (self.offsets, self.first_row, self.rows, self.width) = (offsets, first_row, rows, w);
         true
     }
@@ -1002,9 +1015,48 @@ impl<'g> Window<'g> {
         let i0 = y0 * w + x0;
         let blocked = |j: usize| input.mask.is_some_and(|m| m[j]);
         let (grid, egrid) = (&mut grid[..side * side], &mut egrid[..side * side]);
+        let center = (r + 1) * side + r + 1;
+        let interior = x0 >= r && x0 + r < w && y0 >= r && y0 + r < h;
+        if let (Some(pairs), true) = (pairs, interior) {
+            // Every cell of the window is in the image: write the outer ring and then each inner
+            // cell once, with no bounds to test.
+            for (g, v) in [(&mut *grid, f32::NEG_INFINITY), (&mut *egrid, 0.0)] {
+                g[..side].fill(v);
+                g[side * (side - 1)..].fill(v);
+                for row in 1..side - 1 {
+                    g[row * side] = v;
+                    g[row * side + side - 1] = v;
+                }
+            }
+            let d = input.features.distance(i0, i0);
+            let t = -(d * d) * inv;
+            (grid[center], egrid[center]) = (t, exp_neg(t));
+            let at = (y0 - pairs.first_row) * w + x0;
+            for &(plane, dpix, dcell) in &pairs.steps {
+                // x0 + o is entry (o, x0); x0 − o is entry (o, x0 − o), as d is symmetric.
+                let (up, down) = (plane + at, plane + at - dpix);
+                (grid[center + dcell], egrid[center + dcell]) = (pairs.log[up], pairs.lin[up]);
+                (grid[center - dcell], egrid[center - dcell]) = (pairs.log[down], pairs.lin[down]);
+            }
+            if let Some(mask) = input.mask {
+                let cells = pairs.steps.iter().flat_map(|&(_, dpix, dcell)| {
+                    [(i0 + dpix, center + dcell), (i0 - dpix, center - dcell)]
+                });
+                for (j, g) in std::iter::once((i0, center)).chain(cells) {
+                    if mask[j] {
+                        (grid[g], egrid[g]) = (f32::NEG_INFINITY, 0.0);
+                    }
+                }
+            }
+            return Window {
+                grid,
+                egrid,
+                side,
+                i0,
+            };
+        }
         grid.fill(f32::NEG_INFINITY);
         egrid.fill(0.0);
-        let center = (r + 1) * side + r + 1;
         if let Some(pairs) = pairs {
             if !blocked(i0) {
                 let d = input.features.distance(i0, i0);
