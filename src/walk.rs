@@ -1318,6 +1318,31 @@ mod avx2 {
         ]
     }
 
+    /// Lane s of the result is lane k[s] of rows[s].
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn pick8(rows: &[__m256; SLOTS], k: __m256i) -> __m256 {
+        let [p0, p1, p2, p3, p4, p5, p6, p7] = [
+            _mm256_permutevar8x32_ps(rows[0], k),
+            _mm256_permutevar8x32_ps(rows[1], k),
+            _mm256_permutevar8x32_ps(rows[2], k),
+            _mm256_permutevar8x32_ps(rows[3], k),
+            _mm256_permutevar8x32_ps(rows[4], k),
+            _mm256_permutevar8x32_ps(rows[5], k),
+            _mm256_permutevar8x32_ps(rows[6], k),
+            _mm256_permutevar8x32_ps(rows[7], k),
+        ];
+        let lo = _mm256_blend_ps::<0b1100>(
+            _mm256_blend_ps::<0b10>(p0, p1),
+            _mm256_blend_ps::<0b1000>(p2, p3),
+        );
+        let hi = _mm256_blend_ps::<0b1100_0000>(
+            _mm256_blend_ps::<0b10_0000>(p4, p5),
+            _mm256_blend_ps::<0b1000_0000>(p6, p7),
+        );
+        _mm256_blend_ps::<0b1111_0000>(lo, hi)
+    }
+
     /// The 8-lane mask vector of the low 8 bits of `bits`.
     #[inline]
     #[target_feature(enable = "avx2")]
@@ -1586,10 +1611,15 @@ mod avx2 {
             _mm256_storeu_si256(st.cell.as_mut_ptr().cast(), cell);
             _mm256_storeu_si256(st.pixel.as_mut_ptr().cast(), pixel);
             // A plain loop: a closure here may be left out of line, a call per walk.
+            // Their log-domain twins too, so that the picked one's is a permute away once the
+            // pick is known, where a gather would wait on memory.
             let mut rows = [_mm256_setzero_ps(); SLOTS];
-            for (s, row) in rows.iter_mut().enumerate() {
-                let e = _mm256_loadu_ps(lin.add(8 * st.pixel[s] as usize));
-                *row = _mm256_mul_ps(window_block(egrid, st.cell[s] as usize, side), e);
+            let mut logs = [_mm256_setzero_ps(); SLOTS];
+            for s in 0..SLOTS {
+                let (i, g) = (8 * st.pixel[s] as usize, st.cell[s] as usize);
+                let e = _mm256_loadu_ps(lin.add(i));
+                rows[s] = _mm256_mul_ps(window_block(egrid, g, side), e);
+                logs[s] = _mm256_add_ps(window_block(grid, g, side), _mm256_loadu_ps(log.add(i)));
             }
             let l = transpose8(rows);
             // `super::prefix8`, vertically.
@@ -1636,12 +1666,7 @@ mod avx2 {
                 k = _mm256_blendv_epi8(k, last, lanes(missed));
             }
             let k_safe = _mm256_min_epi32(k, _mm256_set1_epi32(7));
-            let at = _mm256_add_epi32(_mm256_slli_epi32::<3>(pixel), k_safe);
-            let to_cell = _mm256_add_epi32(cell, _mm256_permutevar8x32_epi32(goff, k_safe));
-            let mut x = _mm256_add_ps(
-                _mm256_i32gather_ps::<4>(grid, to_cell),
-                _mm256_i32gather_ps::<4>(log, at),
-            );
+            let mut x = pick8(&logs, k_safe);
             let mut picked = linear;
             let fallback = cand & !linear;
             if fallback != 0 {
