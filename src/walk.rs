@@ -1610,9 +1610,9 @@ mod avx2 {
             // Each walk's 8 neighbour weights, one register per walk, then one per neighbour.
             _mm256_storeu_si256(st.cell.as_mut_ptr().cast(), cell);
             _mm256_storeu_si256(st.pixel.as_mut_ptr().cast(), pixel);
-            // A plain loop: a closure here may be left out of line, a call per walk.
-            // Their log-domain twins too, so that the picked one's is a permute away once the
-            // pick is known, where a gather would wait on memory.
+            // Their log-domain twins are loaded too, so that the picked one's is a permute away
+            // once the pick is known (a gather would wait on memory). A plain loop, not a
+            // closure, which a build may leave out of line: a call per walk.
             let mut rows = [_mm256_setzero_ps(); SLOTS];
             let mut logs = [_mm256_setzero_ps(); SLOTS];
             for s in 0..SLOTS {

@@ -10,6 +10,14 @@ use gsid::walk::{
 use gsid::Image;
 use proptest::prelude::*;
 
+/// A rayon pool of `threads` threads.
+fn pool(threads: usize) -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap()
+}
+
 fn bits(img: &Image) -> Vec<u32> {
     img.data().iter().map(|v| v.to_bits()).collect()
 }
@@ -84,10 +92,7 @@ fn output_is_identical_on_one_and_two_threads() {
     };
     let params = WalkParams::default();
     let run = |threads| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
+        let pool = pool(threads);
         pool.install(|| denoise(&input, &params, &|| {}).0)
     };
     assert_eq!(bits(&run(1)), bits(&run(2)));
@@ -233,10 +238,7 @@ fn strips_equal_one_whole_image_run() {
             };
             let (want, want_stats) = denoise(&whole, &params, &|| {});
             for (strip_rows, threads) in [(1, 2), (3, 1), (8, 3), (40, 2), (100, 2)] {
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .num_threads(threads)
-                    .build()
-                    .unwrap();
+                let pool = pool(threads);
                 let (got, stats) = pool
                     .install(|| {
                         denoise_in_strips(
@@ -283,10 +285,7 @@ fn a_failed_strip_is_an_error_not_a_hang() {
         ..WalkParams::default()
     };
     for threads in [1, 2, 4] {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
+        let pool = pool(threads);
         let result = pool
             .install(|| denoise_in_strips(color, &features_for, None, 1, 0, &params, 4, &|| {}));
         let err = result.expect_err("the broken strip fails the run");
