@@ -163,14 +163,32 @@ pub fn prefix8(e: &[f32; 8]) -> [f32; 8] {
     ]
 }
 
-/// The lane whose cumulative weight first exceeds `target`. If rounding put `target` at the very
-/// top, the last lane with weight (the top of the distribution). Lanes of weight 0 are never
-/// picked: their cumulative sum equals the previous lane's.
+/// The first lane of weight > 0 whose cumulative weight exceeds `target`; if rounding put
+/// `target` above every such lane, the most likely lane (ALGORITHM.md §3).
+///
+/// The weight test is what keeps walks inside their window and the image: [`prefix8`]'s sums are
+/// not monotone to the last ulp (c[3] = (e3 + e2) + (e1 + e0) may exceed c[2] = (e2 + e1) + e0 with
+/// e3 = 0), so "a cumulative sum exceeds the target" alone can pick a lane of weight 0, and such
+/// lanes are the neighbours outside the window, the image or the mask. Callers guarantee some
+/// lane has weight > 0 (Σ ≥ [`LINEAR_MIN`], or the max-subtracted lane's exp(0) = 1).
 #[inline]
-fn pick(c: &[f32; 8], e: &[f32; 8], target: f32) -> usize {
+pub fn pick(c: &[f32; 8], e: &[f32; 8], target: f32) -> usize {
     (0..8)
-        .find(|&k| target < c[k])
-        .unwrap_or_else(|| (0..8).rev().find(|&k| e[k] > 0.0).unwrap_or(0))
+        .find(|&k| e[k] > 0.0 && target < c[k])
+        .unwrap_or_else(|| most_likely(e))
+}
+
+/// The first lane of the largest weight > 0 (lane 0 if none is: callers rule that out).
+#[inline]
+fn most_likely(e: &[f32; 8]) -> usize {
+    let mut best = 0;
+    let mut top = 0.0f32;
+    for k in 0..8 {
+        if e[k] > top {
+            (best, top) = (k, e[k]);
+        }
+    }
+    best
 }
 
 /// Picks a neighbour with the uniform draw `u`, from log-weights `a` (−∞ = not allowed) and their
@@ -1395,6 +1413,46 @@ mod avx2 {
         _mm256_blendv_pd(acc, _mm256_add_pd(acc, x), m)
     }
 
+    /// `super::pick` on 8 walks: per lane, the first neighbour of weight > 0 whose cumulative
+    /// weight `c` exceeds `target` (8 where none does), from the neighbour weights `l`.
+    ///
+    /// The weight test keeps a walk from picking a neighbour outside its window or the image,
+    /// which the sums alone do not (they are not monotone to the last ulp); such a walk would
+    /// then load from outside the band's tables.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) fn pick_lane(c: &[__m256; 8], l: &[__m256; 8], target: __m256) -> __m256i {
+        let mut k = _mm256_setzero_si256();
+        let mut run = _mm256_set1_epi32(-1);
+        for (ck, lk) in c.iter().zip(l) {
+            let hit = _mm256_and_ps(
+                _mm256_cmp_ps::<_CMP_LT_OQ>(target, *ck),
+                _mm256_cmp_ps::<_CMP_GT_OQ>(*lk, _mm256_setzero_ps()),
+            );
+            run = _mm256_andnot_si256(_mm256_castps_si256(hit), run);
+            k = _mm256_sub_epi32(k, run);
+        }
+        k
+    }
+
+    /// `super::most_likely` on 8 walks: the first neighbour of the largest weight > 0.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) fn most_likely8(l: &[__m256; 8]) -> __m256i {
+        let mut best = _mm256_setzero_si256();
+        let mut top = _mm256_setzero_ps();
+        for (lane, lk) in l.iter().enumerate() {
+            let gt = _mm256_cmp_ps::<_CMP_GT_OQ>(*lk, top);
+            top = _mm256_blendv_ps(top, *lk, gt);
+            best = _mm256_blendv_epi8(
+                best,
+                _mm256_set1_epi32(lane as i32),
+                _mm256_castps_si256(gt),
+            );
+        }
+        best
+    }
+
     /// Start pixels per call of [`walk_batch`] for `walks` walks each.
     pub(super) fn batch(walks: u32) -> usize {
         BATCH_WALKS.div_ceil(walks.max(1) as usize).max(1)
@@ -1616,6 +1674,17 @@ mod avx2 {
             let mut rows = [_mm256_setzero_ps(); SLOTS];
             let mut logs = [_mm256_setzero_ps(); SLOTS];
             for s in 0..SLOTS {
+                // The loads below are in bounds because every lane stands inside its window and
+                // the band: walks move only to a neighbour of weight > 0 (`pick_lane`), and the
+                // grid's ring and the band's halo hold the cells around a window's edge.
+                debug_assert!(
+                    (st.pixel[s] as usize) < near.lin.len()
+                        && (st.cell[s] as usize) > side
+                        && (st.cell[s] as usize) + side + 1 < win.grid.len(),
+                    "walk left its window: pixel {} cell {}",
+                    st.pixel[s],
+                    st.cell[s]
+                );
                 let (i, g) = (8 * st.pixel[s] as usize, st.cell[s] as usize);
                 let e = _mm256_loadu_ps(lin.add(i));
                 rows[s] = _mm256_mul_ps(window_block(egrid, g, side), e);
@@ -1637,14 +1706,7 @@ mod avx2 {
             ];
             let mut total_w = c[7];
             let target = _mm256_mul_ps(u, total_w);
-            // The first lane whose cumulative weight exceeds the target: count the leading misses.
-            let mut k = _mm256_setzero_si256();
-            let mut run = _mm256_set1_epi32(-1);
-            for ck in c {
-                let hit = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LT_OQ>(target, ck));
-                run = _mm256_andnot_si256(hit, run);
-                k = _mm256_sub_epi32(k, run);
-            }
+            let mut k = pick_lane(&c, &l, target);
             let cand =
                 _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(max_steps, step))) & live;
             let linear = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GE_OQ>(
@@ -1656,14 +1718,7 @@ mod avx2 {
                 _mm256_set1_epi32(8),
             ))) & linear;
             if missed != 0 {
-                // Rounding put the target at the very top: take the last lane with weight.
-                let mut last = _mm256_setzero_si256();
-                for (lane, lk) in l.iter().enumerate() {
-                    let has =
-                        _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GT_OQ>(*lk, _mm256_setzero_ps()));
-                    last = _mm256_blendv_epi8(last, _mm256_set1_epi32(lane as i32), has);
-                }
-                k = _mm256_blendv_epi8(k, last, lanes(missed));
+                k = _mm256_blendv_epi8(k, most_likely8(&l), lanes(missed));
             }
             let k_safe = _mm256_min_epi32(k, _mm256_set1_epi32(7));
             let mut x = pick8(&logs, k_safe);
@@ -1711,16 +1766,17 @@ mod avx2 {
             let going = picked & above;
             let going_v = lanes(going);
             let moved = widen(going_v);
-            // Picked walks move (a walk that stops now is replaced below, wherever it stands).
+            // Only walks that go on move: a walk that stops stays where it stood (inside its
+            // window and the image), so a lane left without a new walk still loads in bounds.
             cell = _mm256_blendv_epi8(
                 cell,
                 _mm256_add_epi32(cell, _mm256_permutevar8x32_epi32(goff, k)),
-                picked_v,
+                going_v,
             );
             pixel = _mm256_blendv_epi8(
                 pixel,
                 _mm256_add_epi32(pixel, _mm256_permutevar8x32_epi32(ioff, k)),
-                picked_v,
+                going_v,
             );
             step = _mm256_sub_epi32(step, going_v);
             let gamma = _mm256_set1_epi64x(GAMMA as i64);
@@ -1848,4 +1904,119 @@ fn walk_unbounded(
         acc.merge(&part);
     }
     (acc, steps)
+}
+
+#[cfg(test)]
+mod tests {
+    //! The pick against adversarial weights: lanes 3 and 7 (the ends of the prefix sum's two
+    //! halves) of weight 0, and targets on every cumulative sum, one ulp either side of it, and
+    //! at the top of the distribution (u = 1 − 2⁻²⁴).
+    use super::*;
+
+    /// Weight vectors whose lanes 3 or 7 are 0, with cases where [`prefix8`] is not monotone.
+    fn adversarial() -> Vec<[f32; 8]> {
+        let mut key = 7u64;
+        let mut next = || {
+            key = splitmix(key);
+            (key >> 40) as f32 / 16_777_216.0
+        };
+        (0..20_000)
+            .map(|n| {
+                let mut e: [f32; 8] = std::array::from_fn(|_| next());
+                e[3] = 0.0;
+                if n % 2 == 0 {
+                    e[7] = 0.0;
+                }
+                if n % 5 == 0 {
+                    e[0] = 0.0;
+                }
+                e
+            })
+            .collect()
+    }
+
+    /// Targets at every cumulative sum and one ulp either side, and at the top.
+    fn targets(c: &[f32; 8]) -> Vec<f32> {
+        let mut t = vec![c[7] * (1.0 - 1.0 / 16_777_216.0), c[7], 0.0];
+        for &ck in c {
+            t.extend([
+                ck,
+                f32::from_bits(ck.to_bits().saturating_sub(1)),
+                f32::from_bits(ck.to_bits() + 1),
+            ]);
+        }
+        t
+    }
+
+    #[test]
+    fn a_lane_of_weight_zero_is_never_picked() {
+        let mut gaps = 0;
+        for e in adversarial() {
+            let c = prefix8(&e);
+            gaps += usize::from(c[3] > c[2]) + usize::from(c[7] > c[6] && e[7] == 0.0);
+            for t in targets(&c) {
+                let k = pick(&c, &e, t);
+                assert!(
+                    e[k] > 0.0,
+                    "picked lane {k} of weight 0: e {e:?} target {t}"
+                );
+            }
+        }
+        // The vectors do reach the case the weight test is for.
+        assert!(gaps > 100, "only {gaps} non-monotone sums");
+    }
+
+    #[test]
+    fn a_miss_falls_back_to_the_most_likely_lane() {
+        let e = [0.1, 0.4, 0.0, 0.2, 0.4, 0.0, 0.3, 0.0];
+        let c = prefix8(&e);
+        assert_eq!(pick(&c, &e, c[7]), 1);
+        assert_eq!(pick(&c, &e, f32::INFINITY), 1);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn the_avx2_pick_is_the_scalar_pick() {
+        use std::arch::x86_64::*;
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            return;
+        }
+        let vectors = adversarial();
+        for chunk in vectors.chunks_exact(8) {
+            let cs: Vec<[f32; 8]> = chunk.iter().map(prefix8).collect();
+            for probe in 0..targets(&cs[0]).len() {
+                let t: [f32; 8] = std::array::from_fn(|s| targets(&cs[s])[probe]);
+                // Register k holds lane k of every walk, as in the kernel.
+                // SAFETY: AVX2 is present (checked above); loads read 8 floats of local arrays.
+                let got = unsafe {
+                    let col = |m: &[[f32; 8]], k: usize| -> __m256 {
+                        let v: [f32; 8] = std::array::from_fn(|s| m[s][k]);
+                        _mm256_loadu_ps(v.as_ptr())
+                    };
+                    let l: [__m256; 8] = std::array::from_fn(|k| col(chunk, k));
+                    let c: [__m256; 8] = std::array::from_fn(|k| col(&cs, k));
+                    let k = avx2::pick_lane(&c, &l, _mm256_loadu_ps(t.as_ptr()));
+                    let missed = _mm256_cmpeq_epi32(k, _mm256_set1_epi32(8));
+                    let k = _mm256_blendv_epi8(k, avx2::most_likely8(&l), missed);
+                    let mut out = [0i32; 8];
+                    _mm256_storeu_si256(out.as_mut_ptr().cast(), k);
+                    out
+                };
+                for s in 0..8 {
+                    let k = got[s] as usize;
+                    assert!(
+                        chunk[s][k] > 0.0,
+                        "AVX2 picked lane {k} of weight 0: {:?}",
+                        chunk[s]
+                    );
+                    let want = pick(&cs[s], &chunk[s], t[s]);
+                    assert_eq!(
+                        got[s] as usize, want,
+                        "lane {s}: e {:?} target {}",
+                        chunk[s], t[s]
+                    );
+                }
+            }
+        }
+    }
 }
