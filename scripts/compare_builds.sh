@@ -35,12 +35,12 @@ check() { # label file_a file_b
     echo "DIFFERS: $1" >&2
   fi
 }
-# Drops the timing columns (any header named seconds*) from a CSV table.
+# Drops the timing columns (headers seconds*, and `pareto`, which is judged on seconds) from a CSV table.
 untimed() {
   python3 - "$1" <<'PY'
 import csv, sys
 rows = list(csv.reader(open(sys.argv[1], newline="")))
-keep = [i for i, name in enumerate(rows[0]) if not name.startswith("seconds")]
+keep = [i for i, name in enumerate(rows[0]) if not name.startswith("seconds") and name != "pareto"]
 for row in rows:
     print(",".join(row[i] for i in keep))
 PY
