@@ -6,6 +6,7 @@
 #   - `render` of every fixture scene at a small size and low spp (every buffer, cmp).
 # Prints one line per comparison and a closing "N passed, N failed" line; exits 1 on any difference.
 # Usage: scripts/compare_builds.sh [BASE_REV] [SPP...]     (defaults: HEAD, spp1 spp64)
+#        BASE_BIN=path/to/gsid scripts/compare_builds.sh BASE_REV   (use a binary built from BASE_REV)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$(pwd)
@@ -17,12 +18,18 @@ spps=("$@")
 work=$(mktemp -d)
 trap 'git -C "$root" worktree remove --force "$work/base" >/dev/null 2>&1 || true; rm -rf "$work"' EXIT
 
-git worktree add --detach --quiet "$work/base" "$base_rev"
-echo "building base ($(git rev-parse --short "$base_rev")) and working tree ..." >&2
-CARGO_TARGET_DIR="$root/target/compare-base" cargo build --release --quiet --bin gsid \
-  --manifest-path "$work/base/Cargo.toml"
+if [ -n "${BASE_BIN:-}" ]; then
+  # A binary already built from BASE_REV (saves a build; the caller vouches for its commit).
+  old=$(realpath "$BASE_BIN")
+else
+  git worktree add --detach --quiet "$work/base" "$base_rev"
+  echo "building base ($(git rev-parse --short "$base_rev")) ..." >&2
+  CARGO_TARGET_DIR="$root/target/compare-base" cargo build --release --quiet --bin gsid \
+    --manifest-path "$work/base/Cargo.toml"
+  old="$root/target/compare-base/release/gsid"
+fi
+echo "building the working tree ..." >&2
 cargo build --release --quiet --bin gsid
-old="$root/target/compare-base/release/gsid"
 new="$root/target/release/gsid"
 
 passed=0
@@ -35,12 +42,12 @@ check() { # label file_a file_b
     echo "DIFFERS: $1" >&2
   fi
 }
-# Drops the timing columns (any header named seconds*) from a CSV table.
+# Drops the timing columns (headers seconds*, and `pareto`, which is judged on seconds) from a CSV table.
 untimed() {
   python3 - "$1" <<'PY'
 import csv, sys
 rows = list(csv.reader(open(sys.argv[1], newline="")))
-keep = [i for i, name in enumerate(rows[0]) if not name.startswith("seconds")]
+keep = [i for i, name in enumerate(rows[0]) if not name.startswith("seconds") and name != "pareto"]
 for row in rows:
     print(",".join(row[i] for i in keep))
 PY

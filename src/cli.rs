@@ -5,10 +5,12 @@ use std::time::Instant;
 
 use clap::{Parser, Subcommand};
 
+use crate::buffers::Buffers;
+use crate::condition::sanitize_reference;
 use crate::error::{Error, Result};
 use crate::io::{self, PendingOutput};
 use crate::metrics;
-use crate::pipeline::{PipelineSpec, BUILTIN, DEFAULT_PIPELINE};
+use crate::pipeline::{PipelineSpec, BUILTIN, DEFAULT_PIPELINE, OUTPUT_BUFFER};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -221,7 +223,7 @@ fn denoise_in_pool(args: &DenoiseArgs, quiet: bool) -> Result<()> {
             .ok_or_else(|| Error::config("--save-buffer", format!("`{s}` is not NAME=FILE.exr")))?;
         saves.push((name.to_string(), PathBuf::from(path)));
     }
-    let mut set = io::load_render_set(&args.dir)?;
+    let set = io::load_render_set(&args.dir)?;
     let all_outputs = std::iter::once(&args.output).chain(saves.iter().map(|(_, p)| p));
     for out in all_outputs {
         if let Some((name, _)) = set.files.iter().find(|(_, f)| same_file(f, out)) {
@@ -243,11 +245,17 @@ fn denoise_in_pool(args: &DenoiseArgs, quiet: bool) -> Result<()> {
         }
     }
     let read_seconds = start.elapsed().as_secs_f64();
-    let (w, h) = set.buffers.dims().unwrap_or((0, 0));
-    let (out, report) = pipeline.run(&mut set.buffers, args.run.seed, !quiet)?;
+    let (w, h) = set.set.dims();
+    let mut buffers = Buffers::from(set.set);
+    let (out, report) = pipeline.run(&mut buffers, args.run.seed, !quiet)?;
     let write_start = Instant::now();
     for (name, pending) in pending_saves {
-        let buf = set.buffers.get(&name).ok_or_else(|| {
+        let buf = if name == OUTPUT_BUFFER {
+            Some(&out)
+        } else {
+            buffers.get(&name)
+        };
+        let buf = buf.ok_or_else(|| {
             Error::buffer(
                 &name,
                 format!(
@@ -291,7 +299,7 @@ fn denoise_in_pool(args: &DenoiseArgs, quiet: bool) -> Result<()> {
 }
 
 /// The reference for scoring a render set: `--reference`, else the one FORMATS.md places.
-fn reference_for(set: &io::RenderSet, given: Option<&PathBuf>) -> Result<crate::image::Image> {
+fn reference_for(set: &io::LoadedSet, given: Option<&PathBuf>) -> Result<crate::image::Image> {
     let path = given
         .cloned()
         .or_else(|| set.reference.clone())
@@ -301,10 +309,11 @@ fn reference_for(set: &io::RenderSet, given: Option<&PathBuf>) -> Result<crate::
                 "no reference found (here or one level up); pass --reference",
             )
         })?;
-    let reference = io::read_image(&path, 3)?;
-    if Some(reference.dims()) != set.buffers.dims() {
+    let mut reference = io::read_image(&path, 3)?;
+    if reference.dims() != set.set.dims() {
         return Err(Error::file(&path, "does not have the render set's size"));
     }
+    sanitize_reference(&mut reference);
     Ok(reference)
 }
 
@@ -326,8 +335,9 @@ fn ablate(args: &AblateArgs, quiet: bool) -> Result<()> {
     let reference = reference_for(&set, args.reference.as_ref())?;
     let pending = args.out.as_deref().map(table_output).transpose()?;
     let progress = crate::progress::Progress::new(!quiet, "ablate", variants.len() as u64);
+    let buffers = Buffers::from(set.set);
     let rows = args.run.in_pool(|| {
-        crate::ablate::run(&variants, &set.buffers, &reference, args.run.seed, &|_| {
+        crate::ablate::run(&variants, &buffers, &reference, args.run.seed, &|_| {
             progress.inc(1)
         })
     })??;
@@ -375,7 +385,7 @@ fn sweep(args: &SweepArgs, quiet: bool) -> Result<()> {
 fn sweep_into(
     args: &SweepArgs,
     quiet: bool,
-    set: &io::RenderSet,
+    set: &io::LoadedSet,
     reference: &crate::image::Image,
     axes: &[crate::sweep::Axis],
     settings: &[crate::sweep::Setting],
@@ -398,7 +408,7 @@ fn sweep_into(
     let rows = args.run.in_pool(|| {
         sweep::run(
             settings,
-            &set.buffers,
+            &Buffers::from(set.set.clone()),
             reference,
             args.run.seed,
             args.repeat,
@@ -434,7 +444,8 @@ fn sweep_into(
 
 fn eval(args: &EvalArgs) -> Result<()> {
     let image = io::read_image(&args.image, 3)?;
-    let reference = io::read_image(&args.reference, 3)?;
+    let mut reference = io::read_image(&args.reference, 3)?;
+    sanitize_reference(&mut reference);
     if image.dims() != reference.dims() {
         return Err(Error::file(
             &args.image,

@@ -10,9 +10,9 @@ use std::path::{Path, PathBuf};
 
 mod exr_file;
 
-use crate::buffers::{Buffers, FEATURE_BUFFERS};
 use crate::error::{Error, Result};
 use crate::image::Image;
+use crate::render_set::{Feature, RenderSet};
 
 /// Reads an image file as `channels` channels (3 = RGB, 1 = a single channel).
 ///
@@ -172,10 +172,10 @@ impl PendingOutput {
     }
 }
 
-/// A render set as loaded from disk: the buffers, the files they came from, and notes for the user.
-pub struct RenderSet {
+/// A render set as loaded from disk: its buffers, the files they came from, and notes for the user.
+pub struct LoadedSet {
     pub dir: PathBuf,
-    pub buffers: Buffers,
+    pub set: RenderSet,
     /// Path of each loaded buffer, by name.
     pub files: Vec<(String, PathBuf)>,
     /// The reference image path, if one was found (in the folder or one level up).
@@ -193,13 +193,12 @@ fn find_buffer_file(dir: &Path, name: &str) -> Option<PathBuf> {
 }
 
 /// Loads a render set folder: `color` is required, feature buffers are optional.
-pub fn load_render_set(dir: &Path) -> Result<RenderSet> {
+pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
     if !dir.is_dir() {
         return Err(Error::file(dir, "is not a render set folder"));
     }
     let mut notes = Vec::new();
     let mut files = Vec::new();
-    let mut buffers = Buffers::new();
     let color_path = find_buffer_file(dir, "color")
         .ok_or_else(|| Error::file(dir.join("color.exr"), "required buffer `color` not found"))?;
     if color_path.extension().is_some_and(|e| e != "exr") {
@@ -210,27 +209,27 @@ pub fn load_render_set(dir: &Path) -> Result<RenderSet> {
     }
     // The files are independent: decode them all on all threads (colour, the largest, beside the
     // features), then check them in order, so the first error reported is the same on every run.
-    let found: Vec<(&str, usize, Option<PathBuf>)> = FEATURE_BUFFERS
+    let found: Vec<(Feature, Option<PathBuf>)> = Feature::ALL
         .iter()
-        .map(|&(name, channels)| (name, channels, find_buffer_file(dir, name)))
+        .map(|&f| (f, find_buffer_file(dir, f.name())))
         .collect();
     let (color, decoded): (Result<Image>, Vec<Option<Result<Image>>>) = rayon::join(
         || read_image(&color_path, 3),
         || {
             found
                 .par_iter()
-                .map(|(_, channels, path)| path.as_ref().map(|p| read_image(p, *channels)))
+                .map(|(f, path)| path.as_ref().map(|p| read_image(p, f.channels())))
                 .collect()
         },
     );
     let color = color?;
     let (w, h) = color.dims();
-    buffers.insert("color", color)?;
+    let mut set = RenderSet::new(color);
     files.push(("color".to_string(), color_path.clone()));
     let mut missing = Vec::new();
-    for ((name, _, path), img) in found.into_iter().zip(decoded) {
+    for ((feature, path), img) in found.into_iter().zip(decoded) {
         let (Some(path), Some(img)) = (path, img) else {
-            missing.push(name);
+            missing.push(feature.name());
             continue;
         };
         let img = img?;
@@ -245,8 +244,8 @@ pub fn load_render_set(dir: &Path) -> Result<RenderSet> {
                 ),
             ));
         }
-        buffers.insert(name, img)?;
-        files.push((name.to_string(), path));
+        set = set.with(feature, img)?;
+        files.push((feature.name().to_string(), path));
     }
     if !missing.is_empty() {
         notes.push(format!(
@@ -255,9 +254,9 @@ pub fn load_render_set(dir: &Path) -> Result<RenderSet> {
         ));
     }
     let reference = find_reference(dir);
-    Ok(RenderSet {
+    Ok(LoadedSet {
         dir: dir.to_path_buf(),
-        buffers,
+        set,
         files,
         reference,
         notes,
