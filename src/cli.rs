@@ -152,6 +152,7 @@ pub struct EvalArgs {
 /// Runs the CLI and returns the process exit code.
 pub fn main() -> i32 {
     keep_freed_memory();
+    remove_outputs_on_signal();
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => {
@@ -167,6 +168,22 @@ pub fn main() -> i32 {
             e.exit_code()
         }
     }
+}
+
+/// On SIGINT or SIGTERM: removes the temporary files and folders of outputs not yet committed,
+/// then exits 128 + the signal's number (130, 143), as a shell reports a process it stopped.
+fn remove_outputs_on_signal() {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    // Without the handler (it cannot be installed) a signal still ends the run, leaving its temp files.
+    let Ok(mut signals) = signal_hook::iterator::Signals::new([SIGINT, SIGTERM]) else {
+        return;
+    };
+    std::thread::spawn(move || {
+        if let Some(signal) = signals.forever().next() {
+            io::remove_pending_outputs();
+            std::process::exit(128 + signal);
+        }
+    });
 }
 
 /// Stops glibc handing image-sized buffers back to the kernel as soon as they are freed.
@@ -201,11 +218,43 @@ fn run(cli: Cli) -> Result<()> {
     }
 }
 
-fn same_file(a: &Path, b: &Path) -> bool {
-    match (a.canonicalize(), b.canonicalize()) {
-        (Ok(x), Ok(y)) => x == y,
-        _ => false,
+/// The absolute form of a path that may not exist yet: its folder resolved, its name kept.
+fn resolved(p: &Path) -> PathBuf {
+    if let Ok(full) = p.canonicalize() {
+        return full;
     }
+    let dir = match p.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    match (dir.canonicalize(), p.file_name()) {
+        (Ok(d), Some(name)) => d.join(name),
+        _ => p.to_path_buf(),
+    }
+}
+
+fn same_file(a: &Path, b: &Path) -> bool {
+    resolved(a) == resolved(b)
+}
+
+/// Before any work: no output may be one of the run's input files (buffers or the reference),
+/// and no two outputs may be one path (one would silently lose).
+fn check_outputs(inputs: &[(String, PathBuf)], outputs: &[&Path]) -> Result<()> {
+    for (i, out) in outputs.iter().enumerate() {
+        if let Some((name, _)) = inputs.iter().find(|(_, f)| same_file(f, out)) {
+            return Err(Error::output(
+                out,
+                format!("is the input `{name}`; refusing to overwrite an input"),
+            ));
+        }
+        if outputs[..i].iter().any(|o| same_file(o, out)) {
+            return Err(Error::output(
+                out,
+                "is given as two outputs; each output needs its own path",
+            ));
+        }
+    }
+    Ok(())
 }
 
 fn denoise(args: &DenoiseArgs, quiet: bool) -> Result<()> {
@@ -224,15 +273,10 @@ fn denoise_in_pool(args: &DenoiseArgs, quiet: bool) -> Result<()> {
         saves.push((name.to_string(), PathBuf::from(path)));
     }
     let set = io::load_render_set(&args.dir)?;
-    let all_outputs = std::iter::once(&args.output).chain(saves.iter().map(|(_, p)| p));
-    for out in all_outputs {
-        if let Some((name, _)) = set.files.iter().find(|(_, f)| same_file(f, out)) {
-            return Err(Error::output(
-                out,
-                format!("is the input buffer `{name}`; refusing to overwrite an input"),
-            ));
-        }
-    }
+    let outputs: Vec<&Path> = std::iter::once(args.output.as_path())
+        .chain(saves.iter().map(|(_, p)| p.as_path()))
+        .collect();
+    check_outputs(&set.inputs(), &outputs)?;
     // Reserve every output before the work, so an unwritable path fails fast and nothing half-written remains.
     let pending = PendingOutput::create(&args.output)?;
     let pending_saves = saves

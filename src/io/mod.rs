@@ -5,10 +5,12 @@
 //! that is renamed into place, so a failed run never leaves a half-written image.
 
 use rayon::prelude::*;
-use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
 mod exr_file;
+mod output;
+
+pub use output::{remove_pending_outputs, PendingFolder, PendingOutput};
 
 use crate::error::{Error, Result};
 use crate::image::Image;
@@ -85,93 +87,6 @@ pub fn write_exr(path: &Path, image: &Image) -> Result<()> {
     pending.write_exr(image, Compression::Zip)
 }
 
-/// An output file reserved before the work starts: it proves the folder is writable early, and
-/// commits atomically (write to a temporary file, then rename) or vanishes if dropped.
-pub struct PendingOutput {
-    path: PathBuf,
-    tmp: tempfile::NamedTempFile,
-}
-
-impl PendingOutput {
-    pub fn create(path: &Path) -> Result<Self> {
-        let dir = match path.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        if path.is_dir() {
-            return Err(Error::output(path, "is a directory"));
-        }
-        if !dir.is_dir() {
-            return Err(Error::output(
-                path,
-                format!("folder {} does not exist", dir.display()),
-            ));
-        }
-        let tmp = tempfile::Builder::new()
-            .prefix(".gsid-")
-            .suffix(".tmp")
-            .tempfile_in(&dir)
-            .map_err(|e| Error::output(path, e))?;
-        Ok(PendingOutput {
-            path: path.to_path_buf(),
-            tmp,
-        })
-    }
-
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-
-    /// Writes `image` as EXR and renames it into place.
-    pub fn write_exr(self, image: &Image, compression: Compression) -> Result<()> {
-        let c = image.channels();
-        let names: &[&str] = match c {
-            1 => &["Y"],
-            3 => &["R", "G", "B"],
-            4 => &["R", "G", "B", "A"],
-            _ => {
-                return Err(Error::output(
-                    &self.path,
-                    format!("cannot write a {c}-channel image as EXR"),
-                ))
-            }
-        };
-        let compression = match compression {
-            Compression::Zip => exr_file::Compression::ZIP16,
-            Compression::Rle => exr_file::Compression::RLE,
-        };
-        let file = self
-            .tmp
-            .as_file()
-            .try_clone()
-            .map_err(|e| Error::output(&self.path, e))?;
-        // Large writes: a 1 MP image is 12 MB, which 8 KiB buffers would send in 1500 calls.
-        let mut writer = BufWriter::with_capacity(1 << 20, file);
-        exr_file::write(&mut writer, image, names, compression)
-            .map_err(|e| Error::output(&self.path, e))?;
-        use std::io::Write;
-        writer.flush().map_err(|e| Error::output(&self.path, e))?;
-        self.commit()
-    }
-
-    /// Writes arbitrary bytes (CSV, JSON, PNG) and renames into place.
-    pub fn write_bytes(self, bytes: &[u8]) -> Result<()> {
-        use std::io::Write;
-        let mut file = self.tmp.as_file();
-        file.write_all(bytes)
-            .map_err(|e| Error::output(&self.path, e))?;
-        self.commit()
-    }
-
-    fn commit(self) -> Result<()> {
-        let path = self.path;
-        self.tmp
-            .persist(&path)
-            .map_err(|e| Error::output(&path, e.error))?;
-        Ok(())
-    }
-}
-
 /// A render set as loaded from disk: its buffers, the files they came from, and notes for the user.
 pub struct LoadedSet {
     pub dir: PathBuf,
@@ -182,6 +97,19 @@ pub struct LoadedSet {
     pub reference: Option<PathBuf>,
     /// One line per thing worth telling the user (missing buffers, LDR input).
     pub notes: Vec<String>,
+}
+
+impl LoadedSet {
+    /// Every file the set was read from, by buffer name, the reference included.
+    pub fn inputs(&self) -> Vec<(String, PathBuf)> {
+        let mut files = self.files.clone();
+        files.extend(
+            self.reference
+                .iter()
+                .map(|r| ("reference".to_string(), r.clone())),
+        );
+        files
+    }
 }
 
 /// Finds a buffer file `name.{exr,png,jpg}` in `dir`.
