@@ -8,15 +8,17 @@ use std::path::Path;
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use gsid::features::{Features, Tone, Weights};
 use gsid::walk::{denoise_reference, denoise_with, Kernel, WalkInput, WalkParams};
-use gsid::{io, sanitize};
+use gsid::{condition, io};
 
 fn bench_walks(c: &mut Criterion) {
-    let mut set = io::load_render_set(Path::new("fixtures/mitsuba-cornell/spp4")).unwrap();
-    sanitize::sanitize(&mut set.buffers);
-    let color = set.buffers.get("color").unwrap();
+    let mut set = io::load_render_set(Path::new("fixtures/mitsuba-cornell/spp4"))
+        .unwrap()
+        .set;
+    condition::sanitize(Some(&mut set.color), &mut set.features);
+    let color = &set.color;
     let (features, _) = Features::build(
         color,
-        &set.buffers,
+        &set.features,
         &Weights::default(),
         Tone::Reinhard,
         1.0,

@@ -20,8 +20,7 @@ fn main() {
         std::process::exit(2);
     });
     std::fs::create_dir_all(&dst).expect("create destination");
-    for (name, _) in &set.files {
-        let img = set.buffers.get(name).unwrap();
+    for (name, img) in set.set.buffers() {
         let (w, h) = img.dims();
         let tiled = Image::from_fn(w * n, h * n, img.channels(), |x, y, c| {
             img.at(x % w, y % h)[c]

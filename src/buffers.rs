@@ -1,25 +1,35 @@
 //! Named buffers: the blackboard that pipeline stages read from and write to.
 //!
-//! A render set loads as `color` plus whichever of `albedo`, `normal`, `material`, `shadow`, `depth`
-//! exist; stages add their own (`out`, `outlier_mask`, ...). All buffers share one width and height.
+//! A pipeline file names the buffers its stages read and write (`color`, `out`, `outlier_mask`, …).
+//! The render set's own buffers are held typed ([`RenderSet`]'s colour and [`FeatureSet`]), so
+//! kernels take them without a name lookup; only the buffers stages create sit in a map. All
+//! buffers share one width and height.
 
 use std::collections::BTreeMap;
 
 use crate::error::{Error, Result};
 use crate::image::Image;
+use crate::render_set::{Feature, FeatureSet, RenderSet};
 
-/// The feature buffers a renderer may write, with their channel counts (ALGORITHM.md §1).
-pub const FEATURE_BUFFERS: [(&str, usize); 5] = [
-    ("albedo", 3),
-    ("normal", 3),
-    ("material", 3),
-    ("shadow", 1),
-    ("depth", 1),
-];
+/// The buffer holding the render set's colour (a stage may replace it, e.g. with outliers repaired).
+pub const COLOR: &str = "color";
 
 #[derive(Clone, Debug, Default)]
 pub struct Buffers {
-    map: BTreeMap<String, Image>,
+    color: Option<Image>,
+    features: FeatureSet,
+    /// Buffers created by stages, by name.
+    created: BTreeMap<String, Image>,
+}
+
+impl From<RenderSet> for Buffers {
+    fn from(set: RenderSet) -> Self {
+        Buffers {
+            color: Some(set.color),
+            features: set.features,
+            created: BTreeMap::new(),
+        }
+    }
 }
 
 impl Buffers {
@@ -27,16 +37,27 @@ impl Buffers {
         Self::default()
     }
 
-    /// Size shared by all buffers, if any are present.
-    pub fn dims(&self) -> Option<(usize, usize)> {
-        self.map.values().next().map(Image::dims)
+    /// The render set's feature buffers, typed.
+    pub fn features(&self) -> &FeatureSet {
+        &self.features
     }
 
-    /// Adds or replaces a buffer; its size must match the others.
+    /// The render set's colour and features, for in-place input conditioning.
+    pub fn inputs_mut(&mut self) -> (Option<&mut Image>, &mut FeatureSet) {
+        (self.color.as_mut(), &mut self.features)
+    }
+
+    /// Size shared by all buffers, if any are present.
+    pub fn dims(&self) -> Option<(usize, usize)> {
+        self.iter().next().map(|(_, img)| img.dims())
+    }
+
+    /// Adds or replaces a buffer; its size must match the others, and a feature buffer's channel
+    /// count its feature's.
     pub fn insert(&mut self, name: impl Into<String>, image: Image) -> Result<()> {
         let name = name.into();
         if let Some((w, h)) = self.dims() {
-            let only_self = self.map.len() == 1 && self.map.contains_key(&name);
+            let only_self = self.len() == 1 && self.contains(&name);
             if image.dims() != (w, h) && !only_self {
                 return Err(Error::buffer(
                     name,
@@ -48,16 +69,32 @@ impl Buffers {
                 ));
             }
         }
-        self.map.insert(name, image);
+        match Feature::from_name(&name) {
+            Some(f) => {
+                self.features.set(f, image)?;
+            }
+            None if name == COLOR => self.color = Some(image),
+            None => {
+                self.created.insert(name, image);
+            }
+        }
         Ok(())
     }
 
     pub fn get(&self, name: &str) -> Option<&Image> {
-        self.map.get(name)
+        match Feature::from_name(name) {
+            Some(f) => self.features.get(f),
+            None if name == COLOR => self.color.as_ref(),
+            None => self.created.get(name),
+        }
     }
 
     pub fn get_mut(&mut self, name: &str) -> Option<&mut Image> {
-        self.map.get_mut(name)
+        match Feature::from_name(name) {
+            Some(f) => self.features.get_mut(f),
+            None if name == COLOR => self.color.as_mut(),
+            None => self.created.get_mut(name),
+        }
     }
 
     /// The buffer, or an error naming it.
@@ -78,14 +115,30 @@ impl Buffers {
     }
 
     pub fn remove(&mut self, name: &str) -> Option<Image> {
-        self.map.remove(name)
+        match Feature::from_name(name) {
+            Some(f) => self.features.take(f),
+            None if name == COLOR => self.color.take(),
+            None => self.created.remove(name),
+        }
     }
 
     pub fn contains(&self, name: &str) -> bool {
-        self.map.contains_key(name)
+        self.get(name).is_some()
+    }
+
+    /// Every buffer with its name: colour, the features, then the created ones by name.
+    pub fn iter(&self) -> impl Iterator<Item = (&str, &Image)> {
+        let color = self.color.as_ref().map(|c| (COLOR, c));
+        let features = self.features.iter().map(|(f, img)| (f.name(), img));
+        let created = self.created.iter().map(|(n, img)| (n.as_str(), img));
+        color.into_iter().chain(features).chain(created)
     }
 
     pub fn names(&self) -> impl Iterator<Item = &str> {
-        self.map.keys().map(String::as_str)
+        self.iter().map(|(name, _)| name)
+    }
+
+    fn len(&self) -> usize {
+        self.iter().count()
     }
 }

@@ -5,10 +5,12 @@ use std::time::Instant;
 
 use clap::{Parser, Subcommand};
 
+use crate::buffers::Buffers;
+use crate::condition::sanitize_reference;
 use crate::error::{Error, Result};
 use crate::io::{self, PendingOutput};
 use crate::metrics;
-use crate::pipeline::{PipelineSpec, BUILTIN, DEFAULT_PIPELINE};
+use crate::pipeline::{PipelineSpec, BUILTIN, DEFAULT_PIPELINE, OUTPUT_BUFFER};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -150,6 +152,7 @@ pub struct EvalArgs {
 /// Runs the CLI and returns the process exit code.
 pub fn main() -> i32 {
     keep_freed_memory();
+    remove_outputs_on_signal();
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => {
@@ -165,6 +168,22 @@ pub fn main() -> i32 {
             e.exit_code()
         }
     }
+}
+
+/// On SIGINT or SIGTERM: removes the temporary files and folders of outputs not yet committed,
+/// then exits 128 + the signal's number (130, 143), as a shell reports a process it stopped.
+fn remove_outputs_on_signal() {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    // Without the handler (it cannot be installed) a signal still ends the run, leaving its temp files.
+    let Ok(mut signals) = signal_hook::iterator::Signals::new([SIGINT, SIGTERM]) else {
+        return;
+    };
+    std::thread::spawn(move || {
+        if let Some(signal) = signals.forever().next() {
+            io::remove_pending_outputs();
+            std::process::exit(128 + signal);
+        }
+    });
 }
 
 /// Stops glibc handing image-sized buffers back to the kernel as soon as they are freed.
@@ -199,11 +218,43 @@ fn run(cli: Cli) -> Result<()> {
     }
 }
 
-fn same_file(a: &Path, b: &Path) -> bool {
-    match (a.canonicalize(), b.canonicalize()) {
-        (Ok(x), Ok(y)) => x == y,
-        _ => false,
+/// The absolute form of a path that may not exist yet: its folder resolved, its name kept.
+fn resolved(p: &Path) -> PathBuf {
+    if let Ok(full) = p.canonicalize() {
+        return full;
     }
+    let dir = match p.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    match (dir.canonicalize(), p.file_name()) {
+        (Ok(d), Some(name)) => d.join(name),
+        _ => p.to_path_buf(),
+    }
+}
+
+fn same_file(a: &Path, b: &Path) -> bool {
+    resolved(a) == resolved(b)
+}
+
+/// Before any work: no output may be one of the run's input files (buffers or the reference),
+/// and no two outputs may be one path (one would silently lose).
+fn check_outputs(inputs: &[(String, PathBuf)], outputs: &[&Path]) -> Result<()> {
+    for (i, out) in outputs.iter().enumerate() {
+        if let Some((name, _)) = inputs.iter().find(|(_, f)| same_file(f, out)) {
+            return Err(Error::output(
+                out,
+                format!("is the input `{name}`; refusing to overwrite an input"),
+            ));
+        }
+        if outputs[..i].iter().any(|o| same_file(o, out)) {
+            return Err(Error::output(
+                out,
+                "is given as two outputs; each output needs its own path",
+            ));
+        }
+    }
+    Ok(())
 }
 
 fn denoise(args: &DenoiseArgs, quiet: bool) -> Result<()> {
@@ -221,16 +272,11 @@ fn denoise_in_pool(args: &DenoiseArgs, quiet: bool) -> Result<()> {
             .ok_or_else(|| Error::config("--save-buffer", format!("`{s}` is not NAME=FILE.exr")))?;
         saves.push((name.to_string(), PathBuf::from(path)));
     }
-    let mut set = io::load_render_set(&args.dir)?;
-    let all_outputs = std::iter::once(&args.output).chain(saves.iter().map(|(_, p)| p));
-    for out in all_outputs {
-        if let Some((name, _)) = set.files.iter().find(|(_, f)| same_file(f, out)) {
-            return Err(Error::output(
-                out,
-                format!("is the input buffer `{name}`; refusing to overwrite an input"),
-            ));
-        }
-    }
+    let set = io::load_render_set(&args.dir)?;
+    let outputs: Vec<&Path> = std::iter::once(args.output.as_path())
+        .chain(saves.iter().map(|(_, p)| p.as_path()))
+        .collect();
+    check_outputs(&set.inputs(), &outputs)?;
     // Reserve every output before the work, so an unwritable path fails fast and nothing half-written remains.
     let pending = PendingOutput::create(&args.output)?;
     let pending_saves = saves
@@ -243,11 +289,17 @@ fn denoise_in_pool(args: &DenoiseArgs, quiet: bool) -> Result<()> {
         }
     }
     let read_seconds = start.elapsed().as_secs_f64();
-    let (w, h) = set.buffers.dims().unwrap_or((0, 0));
-    let (out, report) = pipeline.run(&mut set.buffers, args.run.seed, !quiet)?;
+    let (w, h) = set.set.dims();
+    let mut buffers = Buffers::from(set.set);
+    let (out, report) = pipeline.run(&mut buffers, args.run.seed, !quiet)?;
     let write_start = Instant::now();
     for (name, pending) in pending_saves {
-        let buf = set.buffers.get(&name).ok_or_else(|| {
+        let buf = if name == OUTPUT_BUFFER {
+            Some(&out)
+        } else {
+            buffers.get(&name)
+        };
+        let buf = buf.ok_or_else(|| {
             Error::buffer(
                 &name,
                 format!(
@@ -291,7 +343,7 @@ fn denoise_in_pool(args: &DenoiseArgs, quiet: bool) -> Result<()> {
 }
 
 /// The reference for scoring a render set: `--reference`, else the one FORMATS.md places.
-fn reference_for(set: &io::RenderSet, given: Option<&PathBuf>) -> Result<crate::image::Image> {
+fn reference_for(set: &io::LoadedSet, given: Option<&PathBuf>) -> Result<crate::image::Image> {
     let path = given
         .cloned()
         .or_else(|| set.reference.clone())
@@ -301,10 +353,11 @@ fn reference_for(set: &io::RenderSet, given: Option<&PathBuf>) -> Result<crate::
                 "no reference found (here or one level up); pass --reference",
             )
         })?;
-    let reference = io::read_image(&path, 3)?;
-    if Some(reference.dims()) != set.buffers.dims() {
+    let mut reference = io::read_image(&path, 3)?;
+    if reference.dims() != set.set.dims() {
         return Err(Error::file(&path, "does not have the render set's size"));
     }
+    sanitize_reference(&mut reference);
     Ok(reference)
 }
 
@@ -326,8 +379,9 @@ fn ablate(args: &AblateArgs, quiet: bool) -> Result<()> {
     let reference = reference_for(&set, args.reference.as_ref())?;
     let pending = args.out.as_deref().map(table_output).transpose()?;
     let progress = crate::progress::Progress::new(!quiet, "ablate", variants.len() as u64);
+    let buffers = Buffers::from(set.set);
     let rows = args.run.in_pool(|| {
-        crate::ablate::run(&variants, &set.buffers, &reference, args.run.seed, &|_| {
+        crate::ablate::run(&variants, &buffers, &reference, args.run.seed, &|_| {
             progress.inc(1)
         })
     })??;
@@ -375,7 +429,7 @@ fn sweep(args: &SweepArgs, quiet: bool) -> Result<()> {
 fn sweep_into(
     args: &SweepArgs,
     quiet: bool,
-    set: &io::RenderSet,
+    set: &io::LoadedSet,
     reference: &crate::image::Image,
     axes: &[crate::sweep::Axis],
     settings: &[crate::sweep::Setting],
@@ -398,7 +452,7 @@ fn sweep_into(
     let rows = args.run.in_pool(|| {
         sweep::run(
             settings,
-            &set.buffers,
+            &Buffers::from(set.set.clone()),
             reference,
             args.run.seed,
             args.repeat,
@@ -434,7 +488,8 @@ fn sweep_into(
 
 fn eval(args: &EvalArgs) -> Result<()> {
     let image = io::read_image(&args.image, 3)?;
-    let reference = io::read_image(&args.reference, 3)?;
+    let mut reference = io::read_image(&args.reference, 3)?;
+    sanitize_reference(&mut reference);
     if image.dims() != reference.dims() {
         return Err(Error::file(
             &args.image,

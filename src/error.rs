@@ -17,6 +17,9 @@ pub enum Error {
     /// The output cannot be written where the user asked.
     #[error("cannot write {}: {msg}", path.display())]
     Output { path: PathBuf, msg: String },
+    /// Writing an output failed part way (disk full, an I/O error): a runtime failure.
+    #[error("cannot write {}: {msg}", path.display())]
+    Write { path: PathBuf, msg: String },
     /// Any other bad usage (e.g. mismatched image sizes given to `eval`).
     #[error("{0}")]
     Usage(String),
@@ -56,10 +59,17 @@ impl Error {
         }
     }
 
+    pub fn write(path: impl AsRef<Path>, msg: impl std::fmt::Display) -> Self {
+        Error::Write {
+            path: path.as_ref().to_path_buf(),
+            msg: msg.to_string(),
+        }
+    }
+
     /// Process exit code, as FORMATS.md fixes it: 2 for bad usage or input, 1 for runtime failures.
     pub fn exit_code(&self) -> i32 {
         match self {
-            Error::Runtime(_) => 1,
+            Error::Runtime(_) | Error::Write { .. } => 1,
             _ => 2,
         }
     }

@@ -18,9 +18,9 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::image::Image;
+use crate::render_set::{Feature, FeatureSet};
 use crate::simd::Kernel;
 
 /// Floats per pixel record (padded to a cache line).
@@ -135,9 +135,16 @@ impl Weights {
     }
 }
 
-/// The buffer each weight needs.
-const WEIGHT_BUFFER: [&str; 8] = [
-    "color", "albedo", "normal", "material", "material", "material", "shadow", "depth",
+/// The feature buffer each weight needs (colour, weight 0, is always there).
+const WEIGHT_BUFFER: [Option<Feature>; 8] = [
+    None,
+    Some(Feature::Albedo),
+    Some(Feature::Normal),
+    Some(Feature::Material),
+    Some(Feature::Material),
+    Some(Feature::Material),
+    Some(Feature::Shadow),
+    Some(Feature::Depth),
 ];
 
 /// The robust tone curve T of feature F1 (averaging always uses linear colour).
@@ -173,17 +180,17 @@ pub struct Features {
 }
 
 impl Features {
-    /// Packs the features of `color` and the feature buffers in `buffers`, weighted by `weights`.
+    /// Packs the features of `color` and the feature buffers `features`, weighted by `weights`.
     ///
     /// Returns the features and the names of weighted features switched off because their buffer is missing.
     pub fn build(
         color: &Image,
-        buffers: &Buffers,
+        features: &FeatureSet,
         weights: &Weights,
         tone: Tone,
         exposure: f32,
     ) -> Result<(Features, Vec<&'static str>)> {
-        Features::build_rows(color, buffers, weights, tone, exposure, 0..color.height())
+        Features::build_rows(color, features, weights, tone, exposure, 0..color.height())
     }
 
     /// [`Features::build`] for image rows `rows` only: a Features `rows.len()` rows high whose row 0
@@ -191,7 +198,7 @@ impl Features {
     /// (64 bytes a pixel).
     pub fn build_rows(
         color: &Image,
-        buffers: &Buffers,
+        features: &FeatureSet,
         weights: &Weights,
         tone: Tone,
         exposure: f32,
@@ -203,22 +210,22 @@ impl Features {
         let n = w * h;
         let mut effective = *weights;
         let mut off = Vec::new();
-        for (i, buffer) in WEIGHT_BUFFER.iter().enumerate().skip(1) {
-            if weights.as_array()[i] > 0.0 && !buffers.contains(buffer) {
+        for (i, buffer) in WEIGHT_BUFFER.iter().enumerate() {
+            if weights.as_array()[i] > 0.0 && buffer.is_some_and(|f| !features.contains(f)) {
                 effective.set(i, 0.0);
                 off.push(Weights::NAMES[i]);
             }
         }
         let wt = effective;
-        let fetch = |name: &str, channels: usize, weight: f32| -> Result<Option<&Image>> {
+        let fetch = |feature: Feature, weight: f32| -> Result<Option<&Image>> {
             if weight <= 0.0 {
                 return Ok(None);
             }
-            let img = buffers.get_channels(name, channels)?;
+            let img = features.get(feature);
             if let Some(img) = img {
                 if img.dims() != color.dims() {
                     return Err(Error::buffer(
-                        name,
+                        feature.name(),
                         "does not match the colour buffer's size",
                     ));
                 }
@@ -227,20 +234,20 @@ impl Features {
         };
         // (buffer, first lane, per-channel scale) of every feature in use.
         let mut packs: Vec<(&Image, usize, Vec<f32>)> = Vec::new();
-        if let Some(a) = fetch("albedo", 3, wt.albedo)? {
+        if let Some(a) = fetch(Feature::Albedo, wt.albedo)? {
             packs.push((a, 3, vec![wt.albedo; 3]));
         }
-        if let Some(nm) = fetch("normal", 3, wt.normal)? {
+        if let Some(nm) = fetch(Feature::Normal, wt.normal)? {
             packs.push((nm, 6, vec![wt.normal.sqrt() * 0.5; 3]));
         }
         let material = wt.diffuse.max(wt.reflective).max(wt.refractive);
-        if let Some(m) = fetch("material", 3, material)? {
+        if let Some(m) = fetch(Feature::Material, material)? {
             packs.push((m, 9, vec![wt.diffuse, wt.reflective, wt.refractive]));
         }
-        if let Some(sh) = fetch("shadow", 1, wt.shadow)? {
+        if let Some(sh) = fetch(Feature::Shadow, wt.shadow)? {
             packs.push((sh, 12, vec![wt.shadow]));
         }
-        if let Some(z) = fetch("depth", 1, wt.depth)? {
+        if let Some(z) = fetch(Feature::Depth, wt.depth)? {
             packs.push((z, 13, vec![1.0]));
         }
         let mut records = vec![[0.0f32; FEATURE_LANES]; n];
@@ -471,6 +478,7 @@ pub fn distance(a: &[f32; FEATURE_LANES], b: &[f32; FEATURE_LANES], depth_weight
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::buffers::Buffers;
 
     fn set_with(color: Vec<f32>, w: usize, h: usize) -> (Image, Buffers) {
         let img = Image::from_vec(w, h, 3, color).unwrap();
@@ -502,7 +510,7 @@ mod tests {
         b.insert("depth", Image::from_vec(2, 1, 1, vec![1.0, 4.0]).unwrap())
             .unwrap();
         let wts = Weights::default();
-        let (f, off) = Features::build(&color, &b, &wts, Tone::Reinhard, 1.0).unwrap();
+        let (f, off) = Features::build(&color, b.features(), &wts, Tone::Reinhard, 1.0).unwrap();
         assert!(off.is_empty());
         let f1 = (3.0f32 * 0.25).sqrt(); // T(1) = 0.5 in each channel
         let f2 = 0.3f32;
@@ -521,8 +529,14 @@ mod tests {
     #[test]
     fn missing_buffers_switch_features_off() {
         let (color, b) = set_with(vec![0.0; 12], 2, 2);
-        let (_, off) =
-            Features::build(&color, &b, &Weights::default(), Tone::Reinhard, 1.0).unwrap();
+        let (_, off) = Features::build(
+            &color,
+            b.features(),
+            &Weights::default(),
+            Tone::Reinhard,
+            1.0,
+        )
+        .unwrap();
         assert_eq!(
             off,
             vec![
@@ -535,8 +549,14 @@ mod tests {
                 "depth"
             ]
         );
-        let (_, off) =
-            Features::build(&color, &b, &Weights::color_only(), Tone::Reinhard, 1.0).unwrap();
+        let (_, off) = Features::build(
+            &color,
+            b.features(),
+            &Weights::color_only(),
+            Tone::Reinhard,
+            1.0,
+        )
+        .unwrap();
         assert!(off.is_empty());
     }
 }

@@ -17,13 +17,12 @@
 use std::path::Path;
 use std::time::Instant;
 
-use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::buffers::Buffers;
+use crate::buffers::{Buffers, COLOR};
+use crate::condition::{Conditioning, SanitizeReport};
 use crate::error::{Error, Result};
 use crate::image::Image;
-use crate::sanitize::{sanitize, SanitizeReport};
 use crate::stages::{self, Context, Stage, StageIo, StageReport};
 
 /// The buffer a pipeline's result is read from.
@@ -286,50 +285,10 @@ impl RunReport {
     }
 }
 
-/// Robust brightness range the stages' parameters (σ, tone curve, outlier floors, the pyramid's log ε)
-/// were calibrated in: the fixtures' mean luminance below the 99th percentile lies in 0.07–0.17.
-pub const CALIBRATED_BRIGHTNESS: (f64, f64) = (0.05, 0.25);
-
-/// The factor that brings `color`'s robust brightness (mean luminance of the pixels at or below the
-/// 99th percentile, so lights and fireflies do not count) into [`CALIBRATED_BRIGHTNESS`]; 1 inside it
-/// and for black images.
-pub fn exposure_scale(color: &Image) -> f32 {
-    let mut lum: Vec<f64> = color
-        .data()
-        .par_chunks_exact(3)
-        .map(|p| 0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64)
-        .collect();
-    if lum.is_empty() {
-        return 1.0;
-    }
-    let k = ((lum.len() - 1) as f64 * 0.99) as usize;
-    let (_, &mut p99, _) = lum.select_nth_unstable_by(k, f64::total_cmp);
-    // One sequential sum: its order (and so its rounding) does not depend on the thread count.
-    let (sum, kept) = lum
-        .iter()
-        .filter(|&&l| l <= p99)
-        .fold((0.0f64, 0usize), |(s, n), &l| (s + l, n + 1));
-    let mean = sum / kept.max(1) as f64;
-    let (lo, hi) = CALIBRATED_BRIGHTNESS;
-    if mean <= 0.0 || mean.is_nan() || (lo..=hi).contains(&mean) {
-        1.0
-    } else {
-        (mean.clamp(lo, hi) / mean) as f32
-    }
-}
-
-/// Multiplies the radiance buffers (input colour and any result) by `factor`.
-fn scale_buffers(buffers: &mut Buffers, factor: f32) {
-    for name in ["color", OUTPUT_BUFFER] {
-        if let Some(img) = buffers.get_mut(name) {
-            img.data_mut().par_iter_mut().for_each(|v| *v *= factor);
-        }
-    }
-}
-
 impl Pipeline {
-    /// Sanitises the buffers, brings colour into the calibrated brightness range, runs every stage,
-    /// and returns the `out` buffer (back at the input's scale) with a report.
+    /// Conditions the inputs (sanitising, brightness: [`Conditioning`]), runs every stage, and
+    /// takes the `out` buffer out of `buffers` (back at the input's scale, as is `color`) with a
+    /// report.
     pub fn run(
         &self,
         buffers: &mut Buffers,
@@ -337,37 +296,28 @@ impl Pipeline {
         progress: bool,
     ) -> Result<(Image, RunReport)> {
         let start = Instant::now();
-        let sanitized = sanitize(buffers);
+        let conditioning = Conditioning::apply(buffers);
         let mut ctx = Context::new(seed, progress);
-        if let Some(line) = sanitized.summary() {
+        for line in conditioning.notes() {
             ctx.note(line);
         }
         self.check_buffers(buffers)?;
-        let scale = buffers.get("color").map_or(1.0, exposure_scale);
-        if scale != 1.0 {
-            ctx.note(format!(
-                "colour is outside the calibrated brightness range; filtered at {scale:.3e}× and scaled back"
-            ));
-            scale_buffers(buffers, scale);
-        }
         for stage in &self.stages {
             stage.execute(buffers, &mut ctx)?;
         }
-        if scale != 1.0 {
-            scale_buffers(buffers, 1.0 / scale);
+        if let Some(color) = buffers.get_mut(COLOR) {
+            conditioning.undo(color);
         }
-        let out = buffers
-            .get(OUTPUT_BUFFER)
-            .map(Image::par_clone)
-            .ok_or_else(|| {
-                Error::buffer(
-                    OUTPUT_BUFFER,
-                    format!("pipeline {} never writes it", self.name),
-                )
-            })?;
+        let mut out = buffers.remove(OUTPUT_BUFFER).ok_or_else(|| {
+            Error::buffer(
+                OUTPUT_BUFFER,
+                format!("pipeline {} never writes it", self.name),
+            )
+        })?;
+        conditioning.undo(&mut out);
         let report = RunReport {
             pipeline: self.name.clone(),
-            sanitized,
+            sanitized: conditioning.sanitized,
             notes: ctx.notes,
             stages: ctx.reports,
             seconds: start.elapsed().as_secs_f64(),

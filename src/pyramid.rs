@@ -13,6 +13,7 @@ use rayon::prelude::*;
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::image::Image;
+use crate::render_set::Feature;
 
 /// Levels stop before either side would drop below this many pixels.
 pub const MIN_LEVEL_SIZE: usize = 4;
@@ -155,7 +156,6 @@ pub fn reduce_masked(color: &Image, mask: &Image) -> Result<(Image, Image)> {
 /// The next coarser level of every buffer: colour-like buffers by REDUCE, normals renormalised,
 /// depth by nearest surface, the colour `input` masked by `mask` when one is given.
 pub fn reduce_buffers(buffers: &Buffers, input: &str, mask: Option<&str>) -> Result<Buffers> {
-    let mut out = Buffers::new();
     let masked = match (mask, buffers.get(input)) {
         (Some(m), Some(color)) => match buffers.get(m) {
             Some(mask_img) => Some(reduce_masked(color, mask_img)?),
@@ -163,22 +163,33 @@ pub fn reduce_buffers(buffers: &Buffers, input: &str, mask: Option<&str>) -> Res
         },
         _ => None,
     };
-    for name in buffers.names() {
-        let img = buffers.get(name).expect("listed buffer exists");
-        let reduced = match (name, &masked) {
-            (n, Some((color, _))) if n == input => color.clone(),
-            (n, Some((_, m))) if Some(n) == mask => m.clone(),
-            ("depth", _) => reduce_min(img),
-            ("normal", _) => {
-                let mut n = reduce(img)?;
-                renormalize(&mut n);
-                n
-            }
-            _ => reduce(img)?,
+    let mut out = Buffers::new();
+    for (name, img) in buffers.iter() {
+        let reduced = match &masked {
+            Some((color, _)) if name == input => color.clone(),
+            Some((_, m)) if Some(name) == mask => m.clone(),
+            _ => match Feature::from_name(name) {
+                Some(feature) => reduce_feature(feature, img)?,
+                None => reduce(img)?,
+            },
         };
         out.insert(name, reduced)?;
     }
     Ok(out)
+}
+
+/// REDUCE of one feature buffer: depth by nearest surface (no phantom depths between two
+/// surfaces), normals renormalised, the rest as colour.
+pub fn reduce_feature(feature: Feature, img: &Image) -> Result<Image> {
+    Ok(match feature {
+        Feature::Depth => reduce_min(img),
+        Feature::Normal => {
+            let mut n = reduce(img)?;
+            renormalize(&mut n);
+            n
+        }
+        Feature::Albedo | Feature::Material | Feature::Shadow => reduce(img)?,
+    })
 }
 
 /// Where the bands of Laplacian blending are formed.

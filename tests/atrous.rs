@@ -19,9 +19,16 @@ fn features<'a>(
     set: &'a Buffers,
 ) -> impl Fn(std::ops::Range<usize>) -> Features + Sync + 'a {
     move |rows| {
-        Features::build_rows(color, set, &Weights::default(), Tone::Reinhard, 1.0, rows)
-            .unwrap()
-            .0
+        Features::build_rows(
+            color,
+            set.features(),
+            &Weights::default(),
+            Tone::Reinhard,
+            1.0,
+            rows,
+        )
+        .unwrap()
+        .0
     }
 }
 

@@ -175,7 +175,7 @@ fn results_do_not_depend_on_the_render_s_brightness_scale() {
         gsid::io::load_render_set(std::path::Path::new("fixtures/mitsuba-cornell/spp4")).unwrap();
     let reference = gsid::io::read_image(set.reference.as_ref().unwrap(), 3).unwrap();
     let at = |k: f32| {
-        let mut b = set.buffers.clone();
+        let mut b = gsid::Buffers::from(set.set.clone());
         b.get_mut("color")
             .unwrap()
             .data_mut()
@@ -207,10 +207,10 @@ fn renders_in_the_calibrated_range_are_not_rescaled() {
             3,
         )
         .unwrap();
-        assert_eq!(gsid::pipeline::exposure_scale(&c), 1.0, "{name}");
+        assert_eq!(gsid::condition::exposure_scale(&c), 1.0, "{name}");
     }
-    assert!(gsid::pipeline::exposure_scale(&Image::filled(4, 4, 3, 100.0)) < 0.01);
-    assert_eq!(gsid::pipeline::exposure_scale(&Image::new(4, 4, 3)), 1.0);
+    assert!(gsid::condition::exposure_scale(&Image::filled(4, 4, 3, 100.0)) < 0.01);
+    assert_eq!(gsid::condition::exposure_scale(&Image::new(4, 4, 3)), 1.0);
 }
 
 #[test]

@@ -49,8 +49,14 @@ fn run_both(
 fn fast_kernel_equals_reference_bit_for_bit() {
     let set = synthetic_set(23, 17);
     let color = set.get("color").unwrap();
-    let (features, _) =
-        Features::build(color, &set, &Weights::default(), Tone::Reinhard, 1.0).unwrap();
+    let (features, _) = Features::build(
+        color,
+        set.features(),
+        &Weights::default(),
+        Tone::Reinhard,
+        1.0,
+    )
+    .unwrap();
     let mask: Vec<bool> = (0..23 * 17).map(|i| i % 11 == 0).collect();
     // 1, 3 and 6 walks batch 8, 3 and 2 start pixels into the AVX2 kernel's slots (23 columns
     // leave a partial batch at the end of every row); 20 walks run one pixel at a time.
@@ -80,8 +86,14 @@ fn fast_kernel_equals_reference_bit_for_bit() {
 fn output_is_identical_on_one_and_two_threads() {
     let set = synthetic_set(31, 9);
     let color = set.get("color").unwrap();
-    let (features, _) =
-        Features::build(color, &set, &Weights::default(), Tone::Reinhard, 1.0).unwrap();
+    let (features, _) = Features::build(
+        color,
+        set.features(),
+        &Weights::default(),
+        Tone::Reinhard,
+        1.0,
+    )
+    .unwrap();
     let input = WalkInput {
         color,
         features: &features,
@@ -102,8 +114,14 @@ fn output_is_identical_on_one_and_two_threads() {
 fn levels_and_seeds_draw_different_walks() {
     let set = synthetic_set(12, 12);
     let color = set.get("color").unwrap();
-    let (features, _) =
-        Features::build(color, &set, &Weights::color_only(), Tone::Reinhard, 1.0).unwrap();
+    let (features, _) = Features::build(
+        color,
+        set.features(),
+        &Weights::color_only(),
+        Tone::Reinhard,
+        1.0,
+    )
+    .unwrap();
     let params = WalkParams {
         sigma: 2.0,
         ..WalkParams::default()
@@ -152,12 +170,11 @@ proptest! {
         window in prop_oneof![Just(0u32), 1u32..5],
         walks in 1u32..6,
     ) {
-        let mut buffers = gsid::Buffers::new();
-        let color = Image::from_fn(w, h, 3, |x, y, c| values[(y * w + x) * 3 + c]);
-        buffers.insert("color", color).unwrap();
-        gsid::sanitize::sanitize(&mut buffers);
-        let color = buffers.get("color").unwrap();
-        let (features, _) = Features::build(color, &buffers, &Weights::color_only(), Tone::Reinhard, 1.0).unwrap();
+        let mut color = Image::from_fn(w, h, 3, |x, y, c| values[(y * w + x) * 3 + c]);
+        let mut features = gsid::FeatureSet::default();
+        gsid::condition::sanitize(Some(&mut color), &mut features);
+        let color = &color;
+        let (features, _) = Features::build(color, &features, &Weights::color_only(), Tone::Reinhard, 1.0).unwrap();
         let params = WalkParams {
             sigma: 10f32.powf(log_sigma),
             walks,
@@ -177,8 +194,14 @@ proptest! {
 fn every_kernel_equals_the_reference() {
     let set = synthetic_set(29, 13);
     let color = set.get("color").unwrap();
-    let (features, _) =
-        Features::build(color, &set, &Weights::default(), Tone::Reinhard, 1.0).unwrap();
+    let (features, _) = Features::build(
+        color,
+        set.features(),
+        &Weights::default(),
+        Tone::Reinhard,
+        1.0,
+    )
+    .unwrap();
     let mask: Vec<bool> = (0..29 * 13).map(|i| i % 7 == 3).collect();
     for (sigma, max_steps) in [(1e-3, 64), (0.05, 64), (1.0, 64), (50.0, 64), (50.0, 3)] {
         for window in [Some(2), Some(5)] {
@@ -216,9 +239,11 @@ fn strips_equal_one_whole_image_run() {
     let set = synthetic_set(w, h);
     let color = set.get("color").unwrap();
     let weights = Weights::default();
-    let (features, _) = Features::build(color, &set, &weights, Tone::Reinhard, 1.0).unwrap();
+    let (features, _) =
+        Features::build(color, set.features(), &weights, Tone::Reinhard, 1.0).unwrap();
     let features_for = |rows: std::ops::Range<usize>| {
-        Features::build_rows(color, &set, &weights, Tone::Reinhard, 1.0, rows).map(|(f, _)| f)
+        Features::build_rows(color, set.features(), &weights, Tone::Reinhard, 1.0, rows)
+            .map(|(f, _)| f)
     };
     let mask: Vec<bool> = (0..w * h).map(|i| i % 13 == 5).collect();
     for window in [Some(1), Some(4), None] {
@@ -277,7 +302,8 @@ fn a_failed_strip_is_an_error_not_a_hang() {
         if rows.contains(&15) {
             return Err(gsid::Error::buffer("albedo", "broken for this test"));
         }
-        Features::build_rows(color, &set, &weights, Tone::Reinhard, 1.0, rows).map(|(f, _)| f)
+        Features::build_rows(color, set.features(), &weights, Tone::Reinhard, 1.0, rows)
+            .map(|(f, _)| f)
     };
     let params = WalkParams {
         walks: 2,

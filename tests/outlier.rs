@@ -58,7 +58,8 @@ fn score(detection: &Detection, injected: &[bool]) -> Score {
 fn load(spp: u32) -> Buffers {
     io::load_render_set(&Path::new(FIXTURE).join(format!("spp{spp}")))
         .unwrap()
-        .buffers
+        .set
+        .into()
 }
 
 fn rule_params(rule: Rule) -> OutlierParams {

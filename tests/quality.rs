@@ -8,16 +8,16 @@ use gsid::{io, metrics};
 
 fn ssim_of(pipeline: Option<&str>, spp: u32) -> f64 {
     let dir = format!("fixtures/mitsuba-cornell/spp{spp}");
-    let mut set = io::load_render_set(Path::new(&dir)).unwrap();
+    let set = io::load_render_set(Path::new(&dir)).unwrap();
     let reference = io::read_image(set.reference.as_ref().unwrap(), 3).unwrap();
     let image = match pipeline {
-        None => set.buffers.get("color").unwrap().clone(),
+        None => set.set.color.clone(),
         Some(p) => {
             PipelineSpec::resolve(p)
                 .unwrap()
                 .build()
                 .unwrap()
-                .run(&mut set.buffers, 0, false)
+                .run(&mut set.set.into(), 0, false)
                 .unwrap()
                 .0
         }
@@ -55,13 +55,13 @@ const FIXTURES: [&str; 5] = [
 
 fn scores_of(pipeline: &str, fixture: &str, spp: u32) -> metrics::Scores {
     let dir = format!("fixtures/{fixture}/spp{spp}");
-    let mut set = io::load_render_set(Path::new(&dir)).unwrap();
+    let set = io::load_render_set(Path::new(&dir)).unwrap();
     let reference = io::read_image(set.reference.as_ref().unwrap(), 3).unwrap();
     let out = PipelineSpec::resolve(pipeline)
         .unwrap()
         .build()
         .unwrap()
-        .run(&mut set.buffers, 0, false)
+        .run(&mut set.set.into(), 0, false)
         .unwrap()
         .0;
     metrics::score(&out, &reference).unwrap()
@@ -107,7 +107,7 @@ fn presets_trade_time_for_quality_in_order() {
             let dir = format!("fixtures/{f}/spp4");
             let set = io::load_render_set(Path::new(&dir)).unwrap();
             let reference = io::read_image(set.reference.as_ref().unwrap(), 3).unwrap();
-            metrics::ssim(set.buffers.get("color").unwrap(), &reference).unwrap()
+            metrics::ssim(&set.set.color, &reference).unwrap()
         };
         let scores = ["fast", "balanced", "quality"].map(|p| scores_of(p, f, 4).ssim);
         let [fast, balanced, quality] = scores;

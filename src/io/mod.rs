@@ -5,14 +5,16 @@
 //! that is renamed into place, so a failed run never leaves a half-written image.
 
 use rayon::prelude::*;
-use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
 mod exr_file;
+mod output;
 
-use crate::buffers::{Buffers, FEATURE_BUFFERS};
+pub use output::{remove_pending_outputs, PendingFolder, PendingOutput};
+
 use crate::error::{Error, Result};
 use crate::image::Image;
+use crate::render_set::{Feature, RenderSet};
 
 /// Reads an image file as `channels` channels (3 = RGB, 1 = a single channel).
 ///
@@ -85,103 +87,29 @@ pub fn write_exr(path: &Path, image: &Image) -> Result<()> {
     pending.write_exr(image, Compression::Zip)
 }
 
-/// An output file reserved before the work starts: it proves the folder is writable early, and
-/// commits atomically (write to a temporary file, then rename) or vanishes if dropped.
-pub struct PendingOutput {
-    path: PathBuf,
-    tmp: tempfile::NamedTempFile,
-}
-
-impl PendingOutput {
-    pub fn create(path: &Path) -> Result<Self> {
-        let dir = match path.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        if path.is_dir() {
-            return Err(Error::output(path, "is a directory"));
-        }
-        if !dir.is_dir() {
-            return Err(Error::output(
-                path,
-                format!("folder {} does not exist", dir.display()),
-            ));
-        }
-        let tmp = tempfile::Builder::new()
-            .prefix(".gsid-")
-            .suffix(".tmp")
-            .tempfile_in(&dir)
-            .map_err(|e| Error::output(path, e))?;
-        Ok(PendingOutput {
-            path: path.to_path_buf(),
-            tmp,
-        })
-    }
-
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-
-    /// Writes `image` as EXR and renames it into place.
-    pub fn write_exr(self, image: &Image, compression: Compression) -> Result<()> {
-        let c = image.channels();
-        let names: &[&str] = match c {
-            1 => &["Y"],
-            3 => &["R", "G", "B"],
-            4 => &["R", "G", "B", "A"],
-            _ => {
-                return Err(Error::output(
-                    &self.path,
-                    format!("cannot write a {c}-channel image as EXR"),
-                ))
-            }
-        };
-        let compression = match compression {
-            Compression::Zip => exr_file::Compression::ZIP16,
-            Compression::Rle => exr_file::Compression::RLE,
-        };
-        let file = self
-            .tmp
-            .as_file()
-            .try_clone()
-            .map_err(|e| Error::output(&self.path, e))?;
-        // Large writes: a 1 MP image is 12 MB, which 8 KiB buffers would send in 1500 calls.
-        let mut writer = BufWriter::with_capacity(1 << 20, file);
-        exr_file::write(&mut writer, image, names, compression)
-            .map_err(|e| Error::output(&self.path, e))?;
-        use std::io::Write;
-        writer.flush().map_err(|e| Error::output(&self.path, e))?;
-        self.commit()
-    }
-
-    /// Writes arbitrary bytes (CSV, JSON, PNG) and renames into place.
-    pub fn write_bytes(self, bytes: &[u8]) -> Result<()> {
-        use std::io::Write;
-        let mut file = self.tmp.as_file();
-        file.write_all(bytes)
-            .map_err(|e| Error::output(&self.path, e))?;
-        self.commit()
-    }
-
-    fn commit(self) -> Result<()> {
-        let path = self.path;
-        self.tmp
-            .persist(&path)
-            .map_err(|e| Error::output(&path, e.error))?;
-        Ok(())
-    }
-}
-
-/// A render set as loaded from disk: the buffers, the files they came from, and notes for the user.
-pub struct RenderSet {
+/// A render set as loaded from disk: its buffers, the files they came from, and notes for the user.
+pub struct LoadedSet {
     pub dir: PathBuf,
-    pub buffers: Buffers,
+    pub set: RenderSet,
     /// Path of each loaded buffer, by name.
     pub files: Vec<(String, PathBuf)>,
     /// The reference image path, if one was found (in the folder or one level up).
     pub reference: Option<PathBuf>,
     /// One line per thing worth telling the user (missing buffers, LDR input).
     pub notes: Vec<String>,
+}
+
+impl LoadedSet {
+    /// Every file the set was read from, by buffer name, the reference included.
+    pub fn inputs(&self) -> Vec<(String, PathBuf)> {
+        let mut files = self.files.clone();
+        files.extend(
+            self.reference
+                .iter()
+                .map(|r| ("reference".to_string(), r.clone())),
+        );
+        files
+    }
 }
 
 /// Finds a buffer file `name.{exr,png,jpg}` in `dir`.
@@ -193,13 +121,12 @@ fn find_buffer_file(dir: &Path, name: &str) -> Option<PathBuf> {
 }
 
 /// Loads a render set folder: `color` is required, feature buffers are optional.
-pub fn load_render_set(dir: &Path) -> Result<RenderSet> {
+pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
     if !dir.is_dir() {
         return Err(Error::file(dir, "is not a render set folder"));
     }
     let mut notes = Vec::new();
     let mut files = Vec::new();
-    let mut buffers = Buffers::new();
     let color_path = find_buffer_file(dir, "color")
         .ok_or_else(|| Error::file(dir.join("color.exr"), "required buffer `color` not found"))?;
     if color_path.extension().is_some_and(|e| e != "exr") {
@@ -210,27 +137,27 @@ pub fn load_render_set(dir: &Path) -> Result<RenderSet> {
     }
     // The files are independent: decode them all on all threads (colour, the largest, beside the
     // features), then check them in order, so the first error reported is the same on every run.
-    let found: Vec<(&str, usize, Option<PathBuf>)> = FEATURE_BUFFERS
+    let found: Vec<(Feature, Option<PathBuf>)> = Feature::ALL
         .iter()
-        .map(|&(name, channels)| (name, channels, find_buffer_file(dir, name)))
+        .map(|&f| (f, find_buffer_file(dir, f.name())))
         .collect();
     let (color, decoded): (Result<Image>, Vec<Option<Result<Image>>>) = rayon::join(
         || read_image(&color_path, 3),
         || {
             found
                 .par_iter()
-                .map(|(_, channels, path)| path.as_ref().map(|p| read_image(p, *channels)))
+                .map(|(f, path)| path.as_ref().map(|p| read_image(p, f.channels())))
                 .collect()
         },
     );
     let color = color?;
     let (w, h) = color.dims();
-    buffers.insert("color", color)?;
+    let mut set = RenderSet::new(color);
     files.push(("color".to_string(), color_path.clone()));
     let mut missing = Vec::new();
-    for ((name, _, path), img) in found.into_iter().zip(decoded) {
+    for ((feature, path), img) in found.into_iter().zip(decoded) {
         let (Some(path), Some(img)) = (path, img) else {
-            missing.push(name);
+            missing.push(feature.name());
             continue;
         };
         let img = img?;
@@ -245,8 +172,8 @@ pub fn load_render_set(dir: &Path) -> Result<RenderSet> {
                 ),
             ));
         }
-        buffers.insert(name, img)?;
-        files.push((name.to_string(), path));
+        set = set.with(feature, img)?;
+        files.push((feature.name().to_string(), path));
     }
     if !missing.is_empty() {
         notes.push(format!(
@@ -255,9 +182,9 @@ pub fn load_render_set(dir: &Path) -> Result<RenderSet> {
         ));
     }
     let reference = find_reference(dir);
-    Ok(RenderSet {
+    Ok(LoadedSet {
         dir: dir.to_path_buf(),
-        buffers,
+        set,
         files,
         reference,
         notes,

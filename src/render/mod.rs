@@ -24,6 +24,7 @@ pub use integrator::{render, RenderResult, Stats};
 pub use scene::Scene;
 
 use crate::error::{Error, Result};
+use crate::io::PendingFolder;
 
 #[derive(clap::Args, Debug)]
 pub struct RenderArgs {
@@ -87,7 +88,10 @@ pub fn run(args: &RenderArgs, quiet: bool) -> Result<()> {
             args.scene.display()
         );
     }
-    output::write_scene(&args.output, &text)?;
+    // Built under a temporary name and renamed into place: never half a render set.
+    let folder = PendingFolder::create(&args.output)?;
+    let dir = folder.staging();
+    output::write_scene(dir, &text)?;
     let mut jobs: Vec<(u32, bool)> = args.spp.iter().map(|&n| (n, false)).collect();
     if args.reference_spp > 0 {
         jobs.push((args.reference_spp, true));
@@ -112,9 +116,9 @@ pub fn run(args: &RenderArgs, quiet: bool) -> Result<()> {
         let r = pool.install(|| render(&scene, spp, seed_for(seed, spp, reference), effects, &bar));
         bar.finish_and_clear();
         if reference {
-            output::write_reference(&args.output, &r)?;
+            output::write_reference(dir, &r)?;
         } else {
-            output::write_buffers(&args.output.join(format!("spp{spp}")), &r)?;
+            output::write_buffers(&dir.join(format!("spp{spp}")), &r)?;
         }
         if !quiet {
             let samples = r.stats.paths as f64;
@@ -126,5 +130,5 @@ pub fn run(args: &RenderArgs, quiet: bool) -> Result<()> {
             );
         }
     }
-    Ok(())
+    folder.commit()
 }

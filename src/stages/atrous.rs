@@ -8,6 +8,7 @@ use crate::atrous;
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::features::{Features, Tone, Weights};
+use crate::render_set::Feature;
 
 /// Parameters of the `atrous` stage (keys of its table in a pipeline file).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -126,11 +127,11 @@ impl Stage for AtrousStage {
         }
         let mask = read_mask(buffers, p.mask.as_deref(), color.dims(), ctx, &self.id)?;
         let albedo = if p.demodulate {
-            match buffers.get_channels("albedo", 3)? {
+            match buffers.features().get(Feature::Albedo) {
                 Some(a) if a.dims() == color.dims() => Some(a),
                 Some(_) => {
                     return Err(Error::buffer(
-                        "albedo",
+                        Feature::Albedo.name(),
                         "does not match the colour buffer's size",
                     ))
                 }
@@ -148,7 +149,14 @@ impl Stage for AtrousStage {
             }
         }
         // Zero rows: checks every feature buffer's size and reports the missing ones, before any work.
-        let (_, off) = Features::build_rows(&color, buffers, &p.weights, p.tone, p.exposure, 0..0)?;
+        let (_, off) = Features::build_rows(
+            &color,
+            buffers.features(),
+            &p.weights,
+            p.tone,
+            p.exposure,
+            0..0,
+        )?;
         if !off.is_empty() {
             ctx.note(format!(
                 "{}: features off (buffer missing): {}",
@@ -160,9 +168,16 @@ impl Stage for AtrousStage {
             // The colour feature is read from each pass's input, which gets cleaner every pass.
             let current = &color;
             let bands = |rows| {
-                Features::build_rows(current, buffers, &p.weights, p.tone, p.exposure, rows)
-                    .expect("buffer sizes were checked above")
-                    .0
+                Features::build_rows(
+                    current,
+                    buffers.features(),
+                    &p.weights,
+                    p.tone,
+                    p.exposure,
+                    rows,
+                )
+                .expect("buffer sizes were checked above")
+                .0
             };
             color = atrous::pass(&color, &bands, mask.as_deref(), 1 << k, p.sigma);
         }

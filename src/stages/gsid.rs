@@ -144,7 +144,7 @@ pub fn run_gsid(
     // Which features are off does not depend on the rows: ask once, on an empty row range.
     let (_, off) = Features::build_rows(
         color,
-        buffers,
+        buffers.features(),
         &params.weights,
         params.tone,
         params.exposure,
@@ -160,7 +160,7 @@ pub fn run_gsid(
     let features_for = |rows: std::ops::Range<usize>| {
         Features::build_rows(
             color,
-            buffers,
+            buffers.features(),
             &params.weights,
             params.tone,
             params.exposure,

@@ -6,6 +6,7 @@ use super::{parse_params, Context, Stage, StageIo};
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::outlier::{self, Action, DetectParams, Guides, Rule};
+use crate::render_set::Feature;
 
 /// Parameters of the `outlier` stage (keys of its table in a pipeline file).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -157,8 +158,8 @@ impl Stage for OutlierStage {
             ));
         }
         let guides = Guides {
-            albedo: buffers.get_channels("albedo", 3)?,
-            normal: buffers.get_channels("normal", 3)?,
+            albedo: buffers.features().get(Feature::Albedo),
+            normal: buffers.features().get(Feature::Normal),
         };
         let p = self.params.detect_params();
         let uses_guides = p.rule == Rule::Feature || self.params.action == Action::Median;

@@ -249,7 +249,15 @@ impl Stage for PyramidStage {
             for stage in &self.levels[l] {
                 stage.execute(level_buffers, ctx)?;
             }
-            denoised.push(level_buffers.require(&out_name)?.clone());
+            level_buffers.require(&out_name)?;
+            // A coarse level's buffers are dropped after this, and level 0's result is replaced
+            // by the blend when it is the stage's output: take it instead of copying it.
+            let last_use = l > 0 || (out_name == self.io.output && out_name != self.io.input);
+            denoised.push(if last_use {
+                level_buffers.remove(&out_name).expect("required above")
+            } else {
+                level_buffers.require(&out_name)?.clone()
+            });
         }
         ctx.level = saved_level;
         drop(coarse);

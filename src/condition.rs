@@ -1,10 +1,17 @@
-//! Input sanitisation (ALGORITHM.md §1): make every buffer finite and in range before any maths,
-//! and count what changed so the run can report it.
+//! Input conditioning, in one place: everything done to a render set before the first stage and
+//! undone after the last.
+//!
+//! 1. Sanitising (docs/ALGORITHM.md §1): every buffer finite and in range before any maths, with a
+//!    count of what changed so the run can report it. A reference is sanitised the same way.
+//! 2. Brightness: colour is scaled into the range the stages' parameters were calibrated in, and
+//!    the result scaled back.
 
 use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::buffers::Buffers;
+use crate::image::Image;
+use crate::render_set::{Feature, FeatureSet};
 
 /// How many samples or pixels sanitisation changed, per kind of fix.
 #[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
@@ -74,24 +81,36 @@ fn fix_each<const N: usize>(
         .reduce(|| [0; N], add)
 }
 
-/// Sanitises every known buffer in place.
-pub fn sanitize(buffers: &mut Buffers) -> SanitizeReport {
-    let mut report = SanitizeReport::default();
-    for name in ["color", "reference"] {
-        if let Some(img) = buffers.get_mut(name) {
-            let [nonfinite, negative] = fix_each(img.data_mut(), |v| {
-                let kinds = [!v.is_finite(), v.is_finite() && *v < 0.0];
-                if kinds.contains(&true) {
-                    *v = 0.0;
-                }
-                kinds
-            });
-            report.color_nonfinite += nonfinite;
-            report.color_negative += negative;
+/// Sets NaN/±Inf and negative radiance samples to 0; returns (non-finite, negative) counts.
+fn sanitize_radiance(img: &mut Image) -> (usize, usize) {
+    let [nonfinite, negative] = fix_each(img.data_mut(), |v| {
+        let kinds = [!v.is_finite(), v.is_finite() && *v < 0.0];
+        if kinds.contains(&true) {
+            *v = 0.0;
         }
+        kinds
+    });
+    (nonfinite, negative)
+}
+
+/// Sanitises a reference image as input colour is sanitised, so a score never meets a NaN.
+pub fn sanitize_reference(reference: &mut Image) -> SanitizeReport {
+    let (color_nonfinite, color_negative) = sanitize_radiance(reference);
+    SanitizeReport {
+        color_nonfinite,
+        color_negative,
+        ..SanitizeReport::default()
     }
-    for name in ["albedo", "material", "shadow"] {
-        if let Some(img) = buffers.get_mut(name) {
+}
+
+/// Sanitises the colour and every feature buffer in place.
+pub fn sanitize(color: Option<&mut Image>, features: &mut FeatureSet) -> SanitizeReport {
+    let mut report = SanitizeReport::default();
+    if let Some(img) = color {
+        (report.color_nonfinite, report.color_negative) = sanitize_radiance(img);
+    }
+    for feature in [Feature::Albedo, Feature::Material, Feature::Shadow] {
+        if let Some(img) = features.get_mut(feature) {
             let [clamped] = fix_each(img.data_mut(), |v| {
                 let clean = if v.is_finite() {
                     v.clamp(0.0, 1.0)
@@ -105,7 +124,7 @@ pub fn sanitize(buffers: &mut Buffers) -> SanitizeReport {
             report.feature_clamped += clamped;
         }
     }
-    if let Some(img) = buffers.get_mut("normal") {
+    if let Some(img) = features.get_mut(Feature::Normal) {
         report.normal_unknown += img
             .data_mut()
             .par_chunks_mut(3 << 14)
@@ -129,7 +148,7 @@ pub fn sanitize(buffers: &mut Buffers) -> SanitizeReport {
             })
             .sum::<usize>();
     }
-    if let Some(img) = buffers.get_mut("depth") {
+    if let Some(img) = features.get_mut(Feature::Depth) {
         let max_finite = img
             .data()
             .par_iter()
@@ -154,10 +173,86 @@ pub fn sanitize(buffers: &mut Buffers) -> SanitizeReport {
     report
 }
 
+/// Robust brightness range the stages' parameters (σ, tone curve, outlier floors, the pyramid's log ε)
+/// were calibrated in: the fixtures' mean luminance below the 99th percentile lies in 0.07–0.17.
+pub const CALIBRATED_BRIGHTNESS: (f64, f64) = (0.05, 0.25);
+
+/// The factor that brings `color`'s robust brightness (mean luminance of the pixels at or below the
+/// 99th percentile, so lights and fireflies do not count) into [`CALIBRATED_BRIGHTNESS`]; 1 inside it
+/// and for black images.
+pub fn exposure_scale(color: &Image) -> f32 {
+    let mut lum: Vec<f64> = color
+        .data()
+        .par_chunks_exact(3)
+        .map(|p| 0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64)
+        .collect();
+    if lum.is_empty() {
+        return 1.0;
+    }
+    let k = ((lum.len() - 1) as f64 * 0.99) as usize;
+    let (_, &mut p99, _) = lum.select_nth_unstable_by(k, f64::total_cmp);
+    // One sequential sum: its order (and so its rounding) does not depend on the thread count.
+    let (sum, kept) = lum
+        .iter()
+        .filter(|&&l| l <= p99)
+        .fold((0.0f64, 0usize), |(s, n), &l| (s + l, n + 1));
+    let mean = sum / kept.max(1) as f64;
+    let (lo, hi) = CALIBRATED_BRIGHTNESS;
+    if mean <= 0.0 || mean.is_nan() || (lo..=hi).contains(&mean) {
+        1.0
+    } else {
+        (mean.clamp(lo, hi) / mean) as f32
+    }
+}
+
+/// What conditioning did to a run's inputs, and what must be undone on its result.
+#[derive(Clone, Debug)]
+pub struct Conditioning {
+    pub sanitized: SanitizeReport,
+    /// The factor colour was filtered at (1: as given).
+    pub scale: f32,
+}
+
+impl Conditioning {
+    /// Sanitises the render set's buffers and brings colour into the calibrated brightness range.
+    pub fn apply(buffers: &mut Buffers) -> Conditioning {
+        let (color, features) = buffers.inputs_mut();
+        let mut color = color;
+        let sanitized = sanitize(color.as_deref_mut(), features);
+        let scale = color.as_deref().map_or(1.0, exposure_scale);
+        if let Some(img) = color {
+            scale_image(img, scale);
+        }
+        Conditioning { sanitized, scale }
+    }
+
+    /// The user's notes for what was changed, in order.
+    pub fn notes(&self) -> Vec<String> {
+        let mut notes: Vec<String> = self.sanitized.summary().into_iter().collect();
+        if self.scale != 1.0 {
+            notes.push(format!(
+                "colour is outside the calibrated brightness range; filtered at {:.3e}× and scaled back",
+                self.scale
+            ));
+        }
+        notes
+    }
+
+    /// Brings a radiance buffer filtered at [`Conditioning::scale`] back to the input's scale.
+    pub fn undo(&self, img: &mut Image) {
+        scale_image(img, 1.0 / self.scale);
+    }
+}
+
+fn scale_image(img: &mut Image, factor: f32) {
+    if factor != 1.0 {
+        img.data_mut().par_iter_mut().for_each(|v| *v *= factor);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::image::Image;
 
     #[test]
     fn counts_and_fixes_bad_samples() {
@@ -169,7 +264,8 @@ mod tests {
         b.insert("normal", normal).unwrap();
         let depth = Image::from_vec(2, 1, 1, vec![f32::INFINITY, 3.0]).unwrap();
         b.insert("depth", depth).unwrap();
-        let r = sanitize(&mut b);
+        let (color, features) = b.inputs_mut();
+        let r = sanitize(color, features);
         assert_eq!(r.color_nonfinite, 2);
         assert_eq!(r.color_negative, 1);
         assert_eq!(r.depth_background, 1);

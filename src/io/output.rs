@@ -1,0 +1,310 @@
+//! Output files and folders: reserved before the work, committed whole or not at all.
+//!
+//! A regular file is written to a temporary file beside it and renamed into place, so a failed or
+//! interrupted run never leaves half an image. A device or FIFO (`-o /dev/null`, a pipe) is written
+//! in place: renaming over it would replace the device node with a file. `-` is standard output.
+//! Temporary files and folders are listed while pending, so a SIGINT or SIGTERM handler can remove
+//! them ([`remove_pending_outputs`]).
+
+use std::fs::{File, OpenOptions};
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use super::{exr_file, Compression};
+use crate::error::{Error, Result};
+use crate::image::Image;
+
+/// The output path that means standard output.
+pub const STDOUT: &str = "-";
+
+/// Temporary files and folders of outputs not yet committed.
+static PENDING: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+
+fn pending() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
+    // A panic elsewhere cannot leave the list half-changed: pushes and removes are single steps.
+    PENDING.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// A path on the pending list while this lives.
+struct Registered(PathBuf);
+
+impl Registered {
+    fn new(path: &Path) -> Self {
+        pending().push(path.to_path_buf());
+        Registered(path.to_path_buf())
+    }
+}
+
+impl Drop for Registered {
+    fn drop(&mut self) {
+        let mut list = pending();
+        if let Some(i) = list.iter().position(|p| *p == self.0) {
+            list.swap_remove(i);
+        }
+    }
+}
+
+/// Removes every temporary file and folder of an output not yet committed (for a signal handler,
+/// which then exits). Holds the list's lock, so no new output starts meanwhile.
+pub fn remove_pending_outputs() {
+    let list = pending();
+    for path in list.iter() {
+        let _ = if path.is_dir() {
+            std::fs::remove_dir_all(path)
+        } else {
+            std::fs::remove_file(path)
+        };
+    }
+    std::mem::forget(list);
+}
+
+/// The folder an output path lies in (`.` for a bare file name).
+fn parent_dir(path: &Path) -> PathBuf {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
+/// Where a reserved output's bytes go.
+enum Target {
+    /// A temporary file beside the output, renamed over it once complete.
+    Temp(tempfile::NamedTempFile, Registered),
+    /// A device or FIFO, written in place.
+    InPlace(File),
+    Stdout,
+}
+
+/// An output file reserved before the work starts: it proves the path is writable early, and
+/// commits atomically or vanishes if dropped (see the module doc for devices and `-`).
+pub struct PendingOutput {
+    path: PathBuf,
+    target: Target,
+}
+
+impl PendingOutput {
+    pub fn create(path: &Path) -> Result<Self> {
+        if path.as_os_str() == STDOUT {
+            return Ok(PendingOutput {
+                path: path.to_path_buf(),
+                target: Target::Stdout,
+            });
+        }
+        match std::fs::metadata(path) {
+            Ok(m) if m.is_dir() => return Err(Error::output(path, "is a directory")),
+            Ok(m) if !m.is_file() => {
+                let file = OpenOptions::new()
+                    .write(true)
+                    .open(path)
+                    .map_err(|e| Error::output(path, e))?;
+                return Ok(PendingOutput {
+                    path: path.to_path_buf(),
+                    target: Target::InPlace(file),
+                });
+            }
+            _ => {}
+        }
+        let dir = parent_dir(path);
+        if !dir.is_dir() {
+            return Err(Error::output(
+                path,
+                format!("folder {} does not exist", dir.display()),
+            ));
+        }
+        let tmp = tempfile::Builder::new()
+            .prefix(".gsid-")
+            .suffix(".tmp")
+            .tempfile_in(&dir)
+            .map_err(|e| Error::output(path, e))?;
+        let listed = Registered::new(tmp.path());
+        Ok(PendingOutput {
+            path: path.to_path_buf(),
+            target: Target::Temp(tmp, listed),
+        })
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Writes `image` as EXR and commits it.
+    pub fn write_exr(self, image: &Image, compression: Compression) -> Result<()> {
+        let c = image.channels();
+        let names: &[&str] = match c {
+            1 => &["Y"],
+            3 => &["R", "G", "B"],
+            4 => &["R", "G", "B", "A"],
+            _ => {
+                return Err(Error::output(
+                    &self.path,
+                    format!("cannot write a {c}-channel image as EXR"),
+                ))
+            }
+        };
+        let compression = match compression {
+            Compression::Zip => exr_file::Compression::ZIP16,
+            Compression::Rle => exr_file::Compression::RLE,
+        };
+        let path = self.path.clone();
+        let write_err = |e: &dyn std::fmt::Display| Error::write(&path, e);
+        if let Target::Temp(tmp, _) = &self.target {
+            let file = tmp.as_file().try_clone().map_err(|e| write_err(&e))?;
+            // Large writes: a 1 MP image is 12 MB, which 8 KiB buffers would send in 1500 calls.
+            let mut writer = BufWriter::with_capacity(1 << 20, file);
+            exr_file::write(&mut writer, image, names, compression).map_err(|e| write_err(&e))?;
+            writer.flush().map_err(|e| write_err(&e))?;
+            drop(writer);
+            return self.commit();
+        }
+        // Devices, pipes and stdout cannot seek back to the offset table: build the file in memory.
+        let mut bytes = std::io::Cursor::new(Vec::new());
+        exr_file::write(&mut bytes, image, names, compression).map_err(|e| write_err(&e))?;
+        self.write_bytes(bytes.get_ref())
+    }
+
+    /// Writes arbitrary bytes (CSV, JSON, PNG) and commits them.
+    pub fn write_bytes(mut self, bytes: &[u8]) -> Result<()> {
+        let written = match &mut self.target {
+            Target::Temp(tmp, _) => tmp.as_file().write_all(bytes),
+            Target::InPlace(file) => file.write_all(bytes),
+            Target::Stdout => {
+                let mut out = std::io::stdout().lock();
+                out.write_all(bytes).and_then(|()| out.flush())
+            }
+        };
+        written.map_err(|e| Error::write(&self.path, e))?;
+        self.commit()
+    }
+
+    /// Renames a temporary file into place; devices and stdout are already written.
+    fn commit(self) -> Result<()> {
+        match self.target {
+            Target::Temp(tmp, _listed) => commit(tmp, &self.path),
+            Target::InPlace(_) | Target::Stdout => Ok(()),
+        }
+    }
+}
+
+/// Gives the temporary file the mode a new file would have (or the replaced file's), then
+/// renames it over `path`.
+fn commit(tmp: tempfile::NamedTempFile, path: &Path) -> Result<()> {
+    set_mode_for(tmp.path(), path).map_err(|e| Error::write(path, e))?;
+    tmp.persist(path)
+        .map(drop)
+        .map_err(|e| Error::write(path, e.error))
+}
+
+/// The temporary file is created 0600; the output gets the mode of the file it replaces, or
+/// 0666 less the process umask, as any program's new file would.
+#[cfg(unix)]
+fn set_mode_for(tmp: &Path, path: &Path) -> std::io::Result<()> {
+    use std::os::unix::fs::PermissionsExt;
+    let mode = match std::fs::metadata(path) {
+        Ok(m) if m.is_file() => m.permissions().mode() & 0o7777,
+        _ => 0o666 & !umask(),
+    };
+    std::fs::set_permissions(tmp, std::fs::Permissions::from_mode(mode))
+}
+
+#[cfg(not(unix))]
+fn set_mode_for(_tmp: &Path, _path: &Path) -> std::io::Result<()> {
+    Ok(())
+}
+
+/// The process umask. Reading it means setting it, so it is read once and put straight back
+/// (while another thread creates a file in that instant, that file gets 0077 more, never less).
+#[cfg(unix)]
+fn umask() -> u32 {
+    static UMASK: std::sync::OnceLock<u32> = std::sync::OnceLock::new();
+    *UMASK.get_or_init(|| {
+        // SAFETY: umask only swaps the process's file-creation mask; it cannot fail.
+        unsafe {
+            let old = libc::umask(0o077);
+            libc::umask(old);
+            old as u32
+        }
+    })
+}
+
+/// An output folder built under a temporary name beside it and renamed into place once complete
+/// (`gsid render`), so an interrupted or failed run never leaves a half-written render set.
+pub struct PendingFolder {
+    path: PathBuf,
+    tmp: Option<tempfile::TempDir>,
+    _listed: Registered,
+}
+
+impl PendingFolder {
+    pub fn create(path: &Path) -> Result<Self> {
+        if path.exists() && !path.is_dir() {
+            return Err(Error::output(path, "exists and is not a folder"));
+        }
+        let dir = parent_dir(path);
+        if !dir.is_dir() {
+            return Err(Error::output(
+                path,
+                format!("folder {} does not exist", dir.display()),
+            ));
+        }
+        let tmp = tempfile::Builder::new()
+            .prefix(".gsid-")
+            .suffix(".tmp")
+            .tempdir_in(&dir)
+            .map_err(|e| Error::output(path, e))?;
+        let listed = Registered::new(tmp.path());
+        Ok(PendingFolder {
+            path: path.to_path_buf(),
+            tmp: Some(tmp),
+            _listed: listed,
+        })
+    }
+
+    /// Where the folder's contents are written until [`PendingFolder::commit`].
+    pub fn staging(&self) -> &Path {
+        self.tmp.as_ref().expect("present until commit").path()
+    }
+
+    /// Renames the finished folder into place. A folder already there is moved aside first and
+    /// removed after, so the path holds the old set or the new one, never a mix.
+    pub fn commit(mut self) -> Result<()> {
+        let tmp = self.tmp.take().expect("present until commit");
+        set_folder_mode(tmp.path()).map_err(|e| Error::write(&self.path, e))?;
+        let staged = tmp.keep();
+        let old = if self.path.exists() {
+            let aside = tempfile::Builder::new()
+                .prefix(".gsid-old-")
+                .tempdir_in(parent_dir(&self.path))
+                .map_err(|e| Error::write(&self.path, e))?
+                .keep();
+            std::fs::rename(&self.path, &aside).map_err(|e| Error::write(&self.path, e))?;
+            Some(aside)
+        } else {
+            None
+        };
+        let renamed = std::fs::rename(&staged, &self.path);
+        if let Err(e) = renamed {
+            if let Some(aside) = &old {
+                let _ = std::fs::rename(aside, &self.path);
+            }
+            let _ = std::fs::remove_dir_all(&staged);
+            return Err(Error::write(&self.path, e));
+        }
+        if let Some(aside) = old {
+            let _ = std::fs::remove_dir_all(aside);
+        }
+        Ok(())
+    }
+}
+
+/// A temporary folder is created 0700; the render set gets 0777 less the umask, as `mkdir` would.
+#[cfg(unix)]
+fn set_folder_mode(dir: &Path) -> std::io::Result<()> {
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(dir, std::fs::Permissions::from_mode(0o777 & !umask()))
+}
+
+#[cfg(not(unix))]
+fn set_folder_mode(_dir: &Path) -> std::io::Result<()> {
+    Ok(())
+}

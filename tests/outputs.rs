@@ -1,0 +1,279 @@
+//! Where outputs go: devices and FIFOs written in place (never replaced by a file), `-o -` to
+//! stdout, inputs and duplicate paths refused before any work, file modes from the umask, write
+//! failures exit 1, and SIGINT/SIGTERM leave no temporary file behind.
+//!
+//! Device tests make their own nodes with `mknod` in a temporary folder (root only) and never touch
+//! /dev/null or /dev/full: while the bug they guard against is there, such a test would replace the
+//! machine's device with a regular file.
+
+mod common;
+
+use std::os::unix::fs::{FileTypeExt, PermissionsExt};
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use common::*;
+
+/// The first four bytes of every EXR file.
+const EXR_MAGIC: [u8; 4] = [0x76, 0x2f, 0x31, 0x01];
+
+fn small_set(dir: &Path) -> String {
+    let set = dir.join("set");
+    write_set(&set, &synthetic_set(16, 12));
+    set.to_str().unwrap().to_string()
+}
+
+fn is_root() -> bool {
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    unsafe { libc::geteuid() == 0 }
+}
+
+/// A character device node `name` in `dir` with the given major/minor numbers.
+fn mknod(dir: &Path, name: &str, major: u32, minor: u32) -> std::path::PathBuf {
+    let path = dir.join(name);
+    let status = Command::new("mknod")
+        .arg(&path)
+        .args(["c", &major.to_string(), &minor.to_string()])
+        .status()
+        .expect("run mknod");
+    assert!(status.success(), "mknod {}", path.display());
+    path
+}
+
+#[test]
+fn a_character_device_stays_a_device() {
+    if !is_root() {
+        eprintln!("skipped: mknod needs root");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let set = small_set(tmp.path());
+    let null = mknod(tmp.path(), "null", 1, 3);
+    let run = gsid(&["denoise", &set, "-o", null.to_str().unwrap(), "-q"]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let kind = std::fs::metadata(&null).unwrap().file_type();
+    assert!(kind.is_char_device(), "the device node was replaced");
+    assert_eq!(
+        files_in(tmp.path()),
+        vec!["null", "set"],
+        "no temp file left"
+    );
+}
+
+#[test]
+fn a_write_failure_on_a_full_device_exits_1() {
+    if !is_root() {
+        eprintln!("skipped: mknod needs root");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let set = small_set(tmp.path());
+    let full = mknod(tmp.path(), "full", 1, 7);
+    let run = gsid(&["denoise", &set, "-o", full.to_str().unwrap(), "-q"]);
+    assert_eq!(run.status.code(), Some(1), "{}", stderr(&run));
+    assert!(stderr(&run).contains("full"), "{}", stderr(&run));
+    assert!(!stderr(&run).contains("panicked"));
+    assert!(std::fs::metadata(&full)
+        .unwrap()
+        .file_type()
+        .is_char_device());
+}
+
+#[test]
+fn a_fifo_is_written_in_place() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = small_set(tmp.path());
+    let fifo = tmp.path().join("pipe");
+    assert!(Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap()
+        .success());
+    let reader = {
+        let fifo = fifo.clone();
+        std::thread::spawn(move || std::fs::read(fifo).unwrap())
+    };
+    let run = gsid(&["denoise", &set, "-o", fifo.to_str().unwrap(), "-q"]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    // Checked before the reader is joined: a FIFO replaced by a file would leave it blocked.
+    assert!(
+        std::fs::metadata(&fifo).unwrap().file_type().is_fifo(),
+        "the FIFO was replaced"
+    );
+    let bytes = reader.join().unwrap();
+    assert_eq!(bytes[..4], EXR_MAGIC);
+}
+
+#[test]
+fn dash_writes_the_exr_to_stdout() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = small_set(tmp.path());
+    let file = tmp.path().join("out.exr");
+    let to_file = gsid(&["denoise", &set, "-o", file.to_str().unwrap(), "-q"]);
+    assert!(to_file.status.success(), "{}", stderr(&to_file));
+    let to_stdout = gsid(&["denoise", &set, "-o", "-", "-q"]);
+    assert!(to_stdout.status.success(), "{}", stderr(&to_stdout));
+    assert_eq!(to_stdout.stdout, std::fs::read(&file).unwrap());
+    assert_eq!(to_stdout.stdout[..4], EXR_MAGIC);
+}
+
+#[test]
+fn the_reference_is_refused_as_an_output() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = copy_fixture(4, tmp.path());
+    let reference = tmp.path().join("reference.exr");
+    let before = std::fs::read(&reference).unwrap();
+    let run = gsid(&[
+        "denoise",
+        set.to_str().unwrap(),
+        "-o",
+        reference.to_str().unwrap(),
+    ]);
+    assert_bad_input(&run, "reference");
+    assert_eq!(before, std::fs::read(&reference).unwrap());
+}
+
+#[test]
+fn two_outputs_to_one_path_are_refused_before_any_work() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = small_set(tmp.path());
+    let out = tmp.path().join("out.exr");
+    let out = out.to_str().unwrap();
+    let run = gsid(&[
+        "denoise",
+        &set,
+        "-o",
+        out,
+        "--save-buffer",
+        &format!("outlier_mask={out}"),
+    ]);
+    assert_bad_input(&run, "two outputs");
+    let other = tmp.path().join("mask.exr");
+    let other = other.to_str().unwrap();
+    let run = gsid(&[
+        "denoise",
+        &set,
+        "-o",
+        out,
+        "--save-buffer",
+        &format!("outlier_mask={other}"),
+        "--save-buffer",
+        &format!("color={other}"),
+    ]);
+    assert_bad_input(&run, "two outputs");
+    assert_eq!(files_in(tmp.path()), vec!["set"]);
+}
+
+#[test]
+fn outputs_get_the_umask_s_mode_and_keep_an_existing_file_s() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = small_set(tmp.path());
+    let out = tmp.path().join("out.exr");
+    let run = |umask: &str| {
+        let script = format!("umask {umask} && exec \"$0\" denoise \"$1\" -o \"$2\" -q",);
+        Command::new("sh")
+            .args(["-c", &script, env!("CARGO_BIN_EXE_gsid"), &set])
+            .arg(&out)
+            .status()
+            .unwrap()
+    };
+    let mode = |p: &Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+    assert!(run("022").success());
+    assert_eq!(mode(&out), 0o644);
+    std::fs::set_permissions(&out, std::fs::Permissions::from_mode(0o640)).unwrap();
+    assert!(run("022").success());
+    assert_eq!(mode(&out), 0o640, "an existing output's mode is kept");
+    std::fs::remove_file(&out).unwrap();
+    assert!(run("077").success());
+    assert_eq!(mode(&out), 0o600);
+}
+
+/// Starts `gsid denoise` on a 2048² set, sends `signal` after a second, and checks the exit code
+/// and that the output folder is left empty.
+fn interrupted(signal: i32, code: i32) {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = tmp.path().join("set");
+    write_set(&set, &synthetic_set(2048, 2048));
+    let out_dir = tmp.path().join("out");
+    std::fs::create_dir(&out_dir).unwrap();
+    let child = Command::new(env!("CARGO_BIN_EXE_gsid"))
+        .args([
+            "denoise",
+            set.to_str().unwrap(),
+            "--pipeline",
+            "quality",
+            "-q",
+            "-o",
+        ])
+        .arg(out_dir.join("big.exr"))
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_secs(1));
+    // SAFETY: kill sends a signal to the child we started; it has no memory-safety preconditions.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, signal) }, 0);
+    let done = child.wait_with_output().unwrap();
+    assert_eq!(
+        done.status.code(),
+        Some(code),
+        "stderr: {}",
+        String::from_utf8_lossy(&done.stderr)
+    );
+    assert!(
+        files_in(&out_dir).is_empty(),
+        "left: {:?}",
+        files_in(&out_dir)
+    );
+}
+
+#[test]
+fn sigint_leaves_no_file_and_exits_130() {
+    interrupted(libc::SIGINT, 130);
+}
+
+#[test]
+fn sigterm_leaves_no_file_and_exits_143() {
+    interrupted(libc::SIGTERM, 143);
+}
+
+#[test]
+fn render_builds_its_set_aside_and_replaces_an_old_one_whole() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("scene.toml");
+    let text = std::fs::read_to_string("fixtures/scenes/cornell.toml")
+        .unwrap()
+        .replace("width = 128", "width = 16")
+        .replace("height = 128", "height = 12");
+    std::fs::write(&scene, text).unwrap();
+    let dest = tmp.path().join("set");
+    let render = |spp: &str| {
+        gsid(&[
+            "render",
+            scene.to_str().unwrap(),
+            "--spp",
+            spp,
+            "--reference-spp",
+            "4",
+            "-q",
+            "-o",
+            dest.to_str().unwrap(),
+        ])
+    };
+    let first = render("1,2");
+    assert!(first.status.success(), "{}", stderr(&first));
+    assert_eq!(
+        files_in(&dest),
+        vec!["reference.exr", "scene.toml", "spp1", "spp2"]
+    );
+    let mode = std::fs::metadata(&dest).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode & 0o700, 0o700);
+    let second = render("4");
+    assert!(second.status.success(), "{}", stderr(&second));
+    assert_eq!(files_in(&dest), vec!["reference.exr", "scene.toml", "spp4"]);
+    assert_eq!(
+        files_in(tmp.path()),
+        vec!["scene.toml", "set"],
+        "no temp folder left"
+    );
+}
