@@ -13,7 +13,7 @@ use crate::error::Result;
 use crate::features::Weights;
 use crate::image::Image;
 use crate::metrics;
-use crate::pipeline::PipelineSpec;
+use crate::spec::{PipelineSpec, StageSpec};
 
 /// One row of the ablation table.
 #[derive(Clone, Debug, Serialize)]
@@ -34,25 +34,16 @@ pub struct Variant {
 }
 
 /// `--set` paths that reach every stage with feature weights (gsid and atrous) of `spec` (top
-/// level, or inside a pyramid).
+/// level, or a composite stage's child).
 fn feature_paths(spec: &PipelineSpec) -> Vec<String> {
+    let weighted = |s: &StageSpec| matches!(s.kind.as_str(), "gsid" | "atrous");
     let mut paths = Vec::new();
     for s in &spec.stages {
-        match s.kind.as_str() {
-            "gsid" | "atrous" => paths.push(s.id.clone()),
-            "pyramid" => {
-                if let Some(toml::Value::Array(subs)) = s.params.get("stages") {
-                    for sub in subs {
-                        let kind = sub.get("kind").and_then(|k| k.as_str());
-                        if let Some(kind @ ("gsid" | "atrous")) = kind {
-                            let id = sub.get("id").and_then(|i| i.as_str()).unwrap_or(kind);
-                            paths.push(format!("{}.{id}", s.id));
-                        }
-                    }
-                }
-            }
-            _ => {}
+        if weighted(s) {
+            paths.push(s.id.clone());
         }
+        let children = s.children.iter().filter(|c| weighted(c));
+        paths.extend(children.map(|c| format!("{}.{}", s.id, c.id)));
     }
     paths
 }
@@ -68,10 +59,8 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
             let mut v = spec.clone();
             let name = if stage.kind == "pyramid" {
                 // One level: the sub-stages at full size, with only the overrides that apply there.
-                v.stages[i]
-                    .params
-                    .retain(|k, _| !(k.starts_with("level") && k != "levels" && k != "level0"));
-                v.apply_set(&format!("{}.levels=1", stage.id))?;
+                v.stages[i].overrides.levels.retain(|_, o| o.level == 0);
+                v.stages[i].set(&["levels"], toml::Value::Integer(1))?;
                 format!("without {} (single scale)", stage.id)
             } else if spec.stages.len() > 1 {
                 v.stages.remove(i);
@@ -87,7 +76,7 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
         for name in Weights::NAMES {
             let mut v = spec.clone();
             for p in &paths {
-                v.apply_set(&format!("{p}.weights.{name}=0.0"))?;
+                v.set(&format!("{p}.weights.{name}"), toml::Value::Float(0.0))?;
             }
             out.push(Variant {
                 name: format!("weight {name} = 0"),

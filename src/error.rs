@@ -56,6 +56,11 @@ impl Error {
         }
     }
 
+    /// A value outside its allowed range: `KEY: is VALUE, allowed range is RANGE`.
+    pub fn range(key: &str, value: impl std::fmt::Display, range: &str) -> Self {
+        Error::config(key, format!("is {value}, allowed range is {range}"))
+    }
+
     /// Process exit code, as FORMATS.md fixes it: 2 for bad usage or input, 1 for runtime failures.
     pub fn exit_code(&self) -> i32 {
         match self {
@@ -69,6 +74,17 @@ impl Error {
         match self {
             Error::Config { key, msg } => Error::Config {
                 key: format!("{prefix}.{key}"),
+                msg,
+            },
+            other => other,
+        }
+    }
+
+    /// Prefix a config error's key with the file it came from (`x.toml: KEY`).
+    pub fn in_file(self, origin: &str) -> Self {
+        match self {
+            Error::Config { key, msg } => Error::Config {
+                key: format!("{origin}: {key}"),
                 msg,
             },
             other => other,

@@ -19,6 +19,7 @@ pub mod pyramid;
 pub mod render;
 pub mod sanitize;
 pub mod simd;
+pub mod spec;
 pub mod stages;
 pub mod sweep;
 pub mod walk;

@@ -232,18 +232,14 @@ fn drop_missing_levels(spec: &mut PipelineSpec, axes: &[Axis]) -> Vec<String> {
             axes.iter().any(|a| a.key.starts_with(&prefix))
         };
         let missing: Vec<String> = stage
-            .params
-            .keys()
-            .filter(|k| {
-                k.strip_prefix("level")
-                    .and_then(|n| n.parse::<i64>().ok())
-                    .is_some_and(|n| n >= levels)
-            })
-            .filter(|k| !varied(k))
-            .cloned()
+            .overrides
+            .levels
+            .iter()
+            .filter(|(k, o)| o.level as i64 >= levels && !varied(k))
+            .map(|(k, _)| k.clone())
             .collect();
         for key in missing {
-            stage.params.remove(&key);
+            stage.overrides.levels.remove(&key);
             notes.push(format!(
                 "{id}.{key} of pipeline {} left out: levels = {levels}",
                 spec.name
@@ -1004,7 +1000,10 @@ mod tests {
         assert_eq!(s[4].values, ["8", "2"]);
         let pyramid = s[4].spec.stages.iter().find(|s| s.id == "pyramid").unwrap();
         assert_eq!(pyramid.params["levels"].as_integer(), Some(2));
-        assert_eq!(pyramid.params["gsid"]["walks"].as_integer(), Some(8));
+        assert_eq!(
+            pyramid.overrides.every_level["gsid"]["walks"].as_integer(),
+            Some(8)
+        );
     }
 
     #[test]
@@ -1052,11 +1051,11 @@ mod tests {
         let full = PipelineSpec::resolve("full").unwrap();
         let s = settings(&full, &[parse_axis("pyramid.levels=1,2").unwrap()]).unwrap();
         let pyramid = |i: usize| s[i].spec.stages.iter().find(|s| s.id == "pyramid").unwrap();
-        assert!(!pyramid(0).params.contains_key("level1"));
+        assert!(!pyramid(0).overrides.levels.contains_key("level1"));
         assert_eq!(s[0].notes.len(), 1, "{:?}", s[0].notes);
         assert!(s[0].notes[0].contains("pyramid.level1"), "{:?}", s[0].notes);
         assert_eq!(
-            pyramid(1).params["level1"]["gsid"]["sigma"].as_float(),
+            pyramid(1).overrides.levels["level1"].stages["gsid"]["sigma"].as_float(),
             Some(0.25)
         );
         assert!(s[1].notes.is_empty());
