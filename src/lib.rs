@@ -2,7 +2,6 @@
 //!
 //! See README.md for the module map. The maths is in ALGORITHM.md of the project's shared notes.
 
-pub mod ablate;
 pub mod atrous;
 pub mod buffers;
 pub mod cli;
@@ -17,11 +16,12 @@ pub mod pipeline;
 pub mod progress;
 pub mod pyramid;
 pub mod render;
+pub mod run;
 pub mod sanitize;
 pub mod simd;
 pub mod spec;
 pub mod stages;
-pub mod sweep;
+pub mod study;
 pub mod walk;
 
 pub use crate::buffers::Buffers;

@@ -8,6 +8,7 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+use super::table;
 use crate::buffers::Buffers;
 use crate::error::Result;
 use crate::features::Weights;
@@ -137,13 +138,20 @@ pub fn table(rows: &[Row]) -> String {
 }
 
 /// The rows as CSV.
-pub fn csv(rows: &[Row]) -> String {
-    let mut t = String::from("variant,ssim,psnr,relmse,seconds,delta_ssim\n");
-    for r in rows {
-        t += &format!(
-            "\"{}\",{},{},{},{},{}\n",
-            r.variant, r.ssim, r.psnr, r.relmse, r.seconds, r.delta_ssim
-        );
-    }
-    t
+pub fn csv(rows: &[Row]) -> Result<String> {
+    let header = ["variant", "ssim", "psnr", "relmse", "seconds", "delta_ssim"].map(String::from);
+    let fields: Vec<[String; 6]> = rows
+        .iter()
+        .map(|r| {
+            [
+                r.variant.clone(),
+                r.ssim.to_string(),
+                r.psnr.to_string(),
+                r.relmse.to_string(),
+                r.seconds.to_string(),
+                r.delta_ssim.to_string(),
+            ]
+        })
+        .collect();
+    table::csv(&header, &fields)
 }
