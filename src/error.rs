@@ -71,22 +71,17 @@ impl Error {
 
     /// Prefix a config error's key with its context (e.g. the stage id), keeping other errors as they are.
     pub fn in_context(self, prefix: &str) -> Self {
-        match self {
-            Error::Config { key, msg } => Error::Config {
-                key: format!("{prefix}.{key}"),
-                msg,
-            },
-            other => other,
-        }
+        self.map_key(|key| format!("{prefix}.{key}"))
     }
 
     /// Prefix a config error's key with the file it came from (`x.toml: KEY`).
     pub fn in_file(self, origin: &str) -> Self {
+        self.map_key(|key| format!("{origin}: {key}"))
+    }
+
+    fn map_key(self, f: impl FnOnce(&str) -> String) -> Self {
         match self {
-            Error::Config { key, msg } => Error::Config {
-                key: format!("{origin}: {key}"),
-                msg,
-            },
+            Error::Config { key, msg } => Error::Config { key: f(&key), msg },
             other => other,
         }
     }

@@ -78,6 +78,16 @@ impl Overrides {
     pub fn is_empty(&self) -> bool {
         self.every_level.is_empty() && self.levels.is_empty()
     }
+
+    /// The overrides of the `levelN` key `key`, made empty if missing.
+    fn level_mut(&mut self, key: &str, level: usize) -> &mut LevelOverride {
+        self.levels
+            .entry(key.to_string())
+            .or_insert_with(|| LevelOverride {
+                level,
+                stages: BTreeMap::new(),
+            })
+    }
 }
 
 /// One stage as written in the file.
@@ -224,14 +234,7 @@ impl StageSpec {
         }
         match self.slot(first) {
             Slot::Level(level) => {
-                let entry = self
-                    .overrides
-                    .levels
-                    .entry(first.to_string())
-                    .or_insert_with(|| LevelOverride {
-                        level,
-                        stages: BTreeMap::new(),
-                    });
+                let entry = self.overrides.level_mut(first, level);
                 let (child, tail) = rest.split_first().expect("rest is not empty");
                 if tail.is_empty() {
                     let t = into_table(value, &key, "parameter overrides")?;
@@ -262,14 +265,7 @@ impl StageSpec {
             match self.slot(key) {
                 Slot::Level(level) => {
                     let o = level_override(level, value.clone(), &here)?;
-                    let entry =
-                        self.overrides
-                            .levels
-                            .entry(key.clone())
-                            .or_insert_with(|| LevelOverride {
-                                level,
-                                stages: BTreeMap::new(),
-                            });
+                    let entry = self.overrides.level_mut(key, level);
                     for (child, t) in &o.stages {
                         merge_tables(entry.stages.entry(child.clone()).or_default(), t);
                     }
@@ -461,6 +457,13 @@ impl PipelineSpec {
 mod tests {
     use super::*;
 
+    fn parse_err(text: &str) -> String {
+        PipelineSpec::parse(text, "x.toml")
+            .err()
+            .unwrap()
+            .to_string()
+    }
+
     const PYRAMID: &str = "name = \"p\"\n[[stage]]\nkind = \"pyramid\"\nlevels = 2\nlevel1 = { gsid = { sigma = 0.5 } }\ngsid = { walks = 4 }\n[[stage.stages]]\nkind = \"gsid\"\nsigma = 1.0\n";
 
     #[test]
@@ -534,26 +537,16 @@ mod tests {
     #[test]
     fn sub_list_errors_name_the_file_and_the_key() {
         let text = "name = \"x\"\n[[stage]]\nkind = \"pyramid\"\n[[stage.stages]]\nsigma = 1\n";
-        let err = PipelineSpec::parse(text, "x.toml")
-            .err()
-            .unwrap()
-            .to_string();
+        let err = parse_err(text);
         assert!(err.contains("x.toml: pyramid.stages[0].kind"), "{err}");
-        let text = "name = \"x\"\n[[stage]]\nkind = \"pyramid\"\nlevel1 = 2\n";
-        let err = PipelineSpec::parse(text, "x.toml")
-            .err()
-            .unwrap()
-            .to_string();
+        let err = parse_err("name = \"x\"\n[[stage]]\nkind = \"pyramid\"\nlevel1 = 2\n");
         assert!(err.contains("x.toml: pyramid.level1"), "{err}");
     }
 
     #[test]
     fn duplicate_stage_ids_are_rejected() {
-        let text = "name = \"x\"\n[[stage]]\nkind = \"gsid\"\n[[stage]]\nkind = \"gsid\"\n";
-        let err = PipelineSpec::parse(text, "x.toml")
-            .err()
-            .unwrap()
-            .to_string();
+        let err =
+            parse_err("name = \"x\"\n[[stage]]\nkind = \"gsid\"\n[[stage]]\nkind = \"gsid\"\n");
         assert!(err.contains("used twice"), "{err}");
     }
 }
