@@ -75,10 +75,6 @@ pub struct LevelOverride {
 }
 
 impl Overrides {
-    pub fn is_empty(&self) -> bool {
-        self.every_level.is_empty() && self.levels.is_empty()
-    }
-
     /// The overrides of the `levelN` key `key`, made empty if missing.
     fn level_mut(&mut self, key: &str, level: usize) -> &mut LevelOverride {
         self.levels
@@ -114,7 +110,7 @@ pub struct PipelineSpec {
 }
 
 /// The level a `levelN` key names (`levels` is a parameter, not a level).
-pub fn level_key(key: &str) -> Option<usize> {
+fn level_key(key: &str) -> Option<usize> {
     key.strip_prefix("level").and_then(|n| n.parse().ok())
 }
 
@@ -234,8 +230,14 @@ impl StageSpec {
         }
         match self.slot(first) {
             Slot::Level(level) => {
-                let entry = self.overrides.level_mut(first, level);
                 let (child, tail) = rest.split_first().expect("rest is not empty");
+                if !self.children.iter().any(|c| c.id == *child) {
+                    return Err(Error::config(
+                        format!("{}.{first}.{child}", self.id),
+                        format!("names no sub-stage of stage `{}`", self.id),
+                    ));
+                }
+                let entry = self.overrides.level_mut(first, level);
                 if tail.is_empty() {
                     let t = into_table(value, &key, "parameter overrides")?;
                     entry.stages.insert(child.to_string(), t);
@@ -511,6 +513,15 @@ mod tests {
             .to_string();
         assert!(
             err.contains("pyramid.level1") && err.contains("table"),
+            "{err}"
+        );
+        let err = spec
+            .apply_set("pyramid.level1.gsdi.sigma=1")
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            err.contains("pyramid.level1.gsdi: names no sub-stage"),
             "{err}"
         );
         let err = spec
