@@ -11,6 +11,9 @@ use crate::error::{Error, Result};
 use crate::io::{self, PendingOutput};
 use crate::metrics;
 use crate::pipeline::{PipelineSpec, BUILTIN, DEFAULT_PIPELINE, OUTPUT_BUFFER};
+use crate::run::RunContext;
+use crate::study::table::{self, Format};
+use crate::study::{ablate, sweep};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -86,7 +89,7 @@ pub struct RunOptions {
     /// Seed for every random choice: same inputs, pipeline and seed give the same bits on any thread count.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Worker threads (default: all cores).
+    /// Worker threads, 1 to 1024 (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
     /// Override a pipeline parameter, e.g. `--set gsid.walks=40` (repeatable).
@@ -104,19 +107,9 @@ impl RunOptions {
         Ok(spec)
     }
 
-    /// Runs `f` on a thread pool of the requested size.
-    pub fn in_pool<T: Send>(&self, f: impl FnOnce() -> T + Send) -> Result<T> {
-        match self.threads {
-            None => Ok(f()),
-            Some(0) => Err(Error::config("--threads", "must be at least 1")),
-            Some(n) => {
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .num_threads(n)
-                    .build()
-                    .map_err(|e| Error::Runtime(format!("cannot start {n} threads: {e}")))?;
-                Ok(pool.install(f))
-            }
-        }
+    /// The thread pool, progress and seed the run asks for (`--threads` checked here).
+    pub fn context(&self, quiet: bool) -> Result<RunContext> {
+        RunContext::new(self.threads, !quiet, self.seed)
     }
 }
 
@@ -258,11 +251,12 @@ fn check_outputs(inputs: &[(String, PathBuf)], outputs: &[&Path]) -> Result<()> 
 }
 
 fn denoise(args: &DenoiseArgs, quiet: bool) -> Result<()> {
+    let ctx = args.run.context(quiet)?;
     // Reading and writing run on the same pool as the pipeline, so `--threads` bounds the whole job.
-    args.run.in_pool(|| denoise_in_pool(args, quiet))?
+    ctx.install(|| denoise_in_pool(args, &ctx))
 }
 
-fn denoise_in_pool(args: &DenoiseArgs, quiet: bool) -> Result<()> {
+fn denoise_in_pool(args: &DenoiseArgs, ctx: &RunContext) -> Result<()> {
     let start = Instant::now();
     let pipeline = args.run.spec()?.build()?;
     let mut saves = Vec::new();
@@ -283,7 +277,7 @@ fn denoise_in_pool(args: &DenoiseArgs, quiet: bool) -> Result<()> {
         .iter()
         .map(|(n, p)| Ok((n.clone(), PendingOutput::create(p)?)))
         .collect::<Result<Vec<_>>>()?;
-    if !quiet {
+    if ctx.progress {
         for line in &set.notes {
             eprintln!("gsid: {line}");
         }
@@ -291,7 +285,7 @@ fn denoise_in_pool(args: &DenoiseArgs, quiet: bool) -> Result<()> {
     let read_seconds = start.elapsed().as_secs_f64();
     let (w, h) = set.set.dims();
     let mut buffers = Buffers::from(set.set);
-    let (out, report) = pipeline.run(&mut buffers, args.run.seed, !quiet)?;
+    let (out, report) = pipeline.run(&mut buffers, ctx.seed, ctx.progress)?;
     let write_start = Instant::now();
     for (name, pending) in pending_saves {
         let buf = if name == OUTPUT_BUFFER {
@@ -312,7 +306,7 @@ fn denoise_in_pool(args: &DenoiseArgs, quiet: bool) -> Result<()> {
     }
     pending.write_exr(&out, io::Compression::Rle)?;
     let write_seconds = write_start.elapsed().as_secs_f64();
-    if !quiet {
+    if ctx.progress {
         for line in &report.notes {
             eprintln!("gsid: {line}");
         }
@@ -361,37 +355,32 @@ fn reference_for(set: &io::LoadedSet, given: Option<&PathBuf>) -> Result<crate::
     Ok(reference)
 }
 
-/// Output file for a table: `.csv` or `.json`, reserved before the work starts.
-fn table_output(path: &Path) -> Result<(PendingOutput, bool)> {
-    let json = match path.extension().and_then(|e| e.to_str()) {
-        Some("json") => true,
-        Some("csv") => false,
-        _ => return Err(Error::output(path, "must end in .csv or .json")),
-    };
-    Ok((PendingOutput::create(path)?, json))
-}
-
 fn ablate(args: &AblateArgs, quiet: bool) -> Result<()> {
+    let ctx = args.run.context(quiet)?;
     let spec = args.run.spec()?;
     spec.build()?;
-    let variants = crate::ablate::variants(&spec)?;
+    let variants = ablate::variants(&spec)?;
     let set = io::load_render_set(&args.dir)?;
     let reference = reference_for(&set, args.reference.as_ref())?;
-    let pending = args.out.as_deref().map(table_output).transpose()?;
-    let progress = crate::progress::Progress::new(!quiet, "ablate", variants.len() as u64);
+    // Reserved before the work, so an unwritable path fails fast.
+    let pending = args
+        .out
+        .as_deref()
+        .map(|p| Ok((Format::of(p)?, PendingOutput::create(p)?)))
+        .transpose()?;
+    let progress = crate::progress::Progress::new(ctx.progress, "ablate", variants.len() as u64);
     let buffers = Buffers::from(set.set);
-    let rows = args.run.in_pool(|| {
-        crate::ablate::run(&variants, &buffers, &reference, args.run.seed, &|_| {
+    let rows = ctx.install(|| {
+        ablate::run(&variants, &buffers, &reference, ctx.seed, &|_| {
             progress.inc(1)
         })
-    })??;
+    })?;
     progress.finish();
-    print!("{}", crate::ablate::table(&rows));
-    if let Some((pending, json)) = pending {
-        let text = if json {
-            serde_json::to_string_pretty(&rows).map_err(|e| Error::Runtime(e.to_string()))?
-        } else {
-            crate::ablate::csv(&rows)
+    print!("{}", ablate::table(&rows));
+    if let Some((format, pending)) = pending {
+        let text = match format {
+            Format::Json => table::json(&rows)?,
+            Format::Csv => ablate::csv(&rows)?,
         };
         pending.write_bytes(text.as_bytes())?;
     }
@@ -402,8 +391,8 @@ fn ablate(args: &AblateArgs, quiet: bool) -> Result<()> {
 const SWEEP_FILES: [&str; 3] = ["sweep.csv", "sweep.png", "sweep.svg"];
 
 fn sweep(args: &SweepArgs, quiet: bool) -> Result<()> {
-    use crate::sweep;
     // Everything that can be wrong with the arguments is found before the render set is even read.
+    let ctx = args.run.context(quiet)?;
     if args.repeat == 0 {
         return Err(Error::config("--repeat", "must be at least 1"));
     }
@@ -418,7 +407,7 @@ fn sweep(args: &SweepArgs, quiet: bool) -> Result<()> {
     }
     let created = !args.out.exists();
     std::fs::create_dir_all(&args.out).map_err(|e| Error::output(&args.out, e))?;
-    let result = sweep_into(args, quiet, &set, &reference, &axes, &settings);
+    let result = sweep_into(args, &ctx, &set, &reference, &axes, &settings);
     if result.is_err() && created {
         // Leave nothing behind: the folder is empty again once the reserved files are dropped.
         let _ = std::fs::remove_dir(&args.out);
@@ -428,13 +417,12 @@ fn sweep(args: &SweepArgs, quiet: bool) -> Result<()> {
 
 fn sweep_into(
     args: &SweepArgs,
-    quiet: bool,
+    ctx: &RunContext,
     set: &io::LoadedSet,
     reference: &crate::image::Image,
-    axes: &[crate::sweep::Axis],
-    settings: &[crate::sweep::Setting],
+    axes: &[sweep::Axis],
+    settings: &[sweep::Setting],
 ) -> Result<()> {
-    use crate::sweep;
     let [csv, png, svg] = SWEEP_FILES.map(|f| args.out.join(f));
     // Reserved before the work, so an unwritable folder fails fast and nothing half-written remains.
     let (csv_out, png_out, svg_out) = (
@@ -442,23 +430,23 @@ fn sweep_into(
         PendingOutput::create(&png)?,
         PendingOutput::create(&svg)?,
     );
-    if !quiet {
+    if ctx.progress {
         for line in &set.notes {
             eprintln!("gsid: {line}");
         }
     }
     let runs = (settings.len() * args.repeat) as u64;
-    let progress = crate::progress::Progress::new(!quiet, "sweep", runs);
-    let rows = args.run.in_pool(|| {
+    let progress = crate::progress::Progress::new(ctx.progress, "sweep", runs);
+    let rows = ctx.install(|| {
         sweep::run(
             settings,
             &Buffers::from(set.set.clone()),
             reference,
-            args.run.seed,
+            ctx.seed,
             args.repeat,
             &|| progress.inc(1),
         )
-    })??;
+    })?;
     progress.finish();
     let pipeline = settings.first().map_or("", |s| s.spec.name.as_str());
     let title = format!(
@@ -467,10 +455,10 @@ fn sweep_into(
     );
     let png_bytes = sweep::plot_png(&rows, &title)?;
     let svg_text = sweep::plot_svg(&rows, &title)?;
-    csv_out.write_bytes(sweep::csv(axes, &rows).as_bytes())?;
+    csv_out.write_bytes(sweep::csv(axes, &rows)?.as_bytes())?;
     png_out.write_bytes(&png_bytes)?;
     svg_out.write_bytes(svg_text.as_bytes())?;
-    if !quiet {
+    if ctx.progress {
         for line in sweep::notes(&rows) {
             eprintln!("gsid: {line}");
         }

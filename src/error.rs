@@ -66,6 +66,11 @@ impl Error {
         }
     }
 
+    /// A value outside its allowed range: `KEY: is VALUE, allowed range is RANGE`.
+    pub fn range(key: &str, value: impl std::fmt::Display, range: &str) -> Self {
+        Error::config(key, format!("is {value}, allowed range is {range}"))
+    }
+
     /// Process exit code, as FORMATS.md fixes it: 2 for bad usage or input, 1 for runtime failures.
     pub fn exit_code(&self) -> i32 {
         match self {
@@ -76,11 +81,17 @@ impl Error {
 
     /// Prefix a config error's key with its context (e.g. the stage id), keeping other errors as they are.
     pub fn in_context(self, prefix: &str) -> Self {
+        self.map_key(|key| format!("{prefix}.{key}"))
+    }
+
+    /// Prefix a config error's key with the file it came from (`x.toml: KEY`).
+    pub fn in_file(self, origin: &str) -> Self {
+        self.map_key(|key| format!("{origin}: {key}"))
+    }
+
+    fn map_key(self, f: impl FnOnce(&str) -> String) -> Self {
         match self {
-            Error::Config { key, msg } => Error::Config {
-                key: format!("{prefix}.{key}"),
-                msg,
-            },
+            Error::Config { key, msg } => Error::Config { key: f(&key), msg },
             other => other,
         }
     }

@@ -2,7 +2,6 @@
 //!
 //! See README.md for the module map. The maths is in ALGORITHM.md of the project's shared notes.
 
-pub mod ablate;
 pub mod atrous;
 pub mod buffers;
 pub mod cli;
@@ -19,9 +18,11 @@ pub mod progress;
 pub mod pyramid;
 pub mod render;
 pub mod render_set;
+pub mod run;
 pub mod simd;
+pub mod spec;
 pub mod stages;
-pub mod sweep;
+pub mod study;
 pub mod walk;
 
 pub use crate::buffers::Buffers;

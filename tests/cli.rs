@@ -351,3 +351,29 @@ fn ablate_prints_and_writes_the_table() {
     write_set(&set, &synthetic_set(8, 8));
     assert_bad_input(&gsid(&["ablate", set.to_str().unwrap()]), "reference");
 }
+
+#[test]
+fn thread_counts_outside_1_to_1024_are_refused_by_every_command() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("o.exr");
+    let dir = tmp.path().join("d");
+    let (o, d) = (out.to_str().unwrap(), dir.to_str().unwrap());
+    let set4 = "fixtures/mitsuba-cornell/spp4";
+    let scene = "fixtures/scenes/cornell.toml";
+    for threads in ["0", "1025"] {
+        let with_threads = |args: &[&str]| {
+            let mut a = args.to_vec();
+            a.extend(["--threads", threads]);
+            gsid(&a)
+        };
+        for run in [
+            with_threads(&["denoise", FIXTURE_SPP1, "-o", o]),
+            with_threads(&["render", scene, "-o", d, "--spp", "1"]),
+            with_threads(&["ablate", set4]),
+            with_threads(&["sweep", set4, "--vary", "gsid.walks=1", "--out", d]),
+        ] {
+            assert_bad_input(&run, "--threads");
+        }
+    }
+    assert!(files_in(tmp.path()).is_empty());
+}

@@ -7,7 +7,7 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 use common::*;
-use gsid::sweep::{dominates, pareto_front};
+use gsid::study::sweep::{dominates, pareto_front};
 use proptest::prelude::*;
 
 const SET: &str = "fixtures/mitsuba-cornell/spp4";
@@ -42,12 +42,8 @@ fn small_sweep(cwd: &Path, extra: &[&str]) -> Output {
 }
 
 fn parse_csv(text: &str) -> (Vec<String>, Vec<Vec<String>>) {
-    // Labels are quoted (they hold spaces) but never hold commas, so a plain split is enough here.
-    let split = |l: &str| {
-        l.split(',')
-            .map(|f| f.trim_matches('"').to_string())
-            .collect()
-    };
+    // Labels never hold commas (so they are not quoted), so a plain split is enough here.
+    let split = |l: &str| l.split(',').map(String::from).collect();
     let mut lines = text.lines();
     let header = split(lines.next().expect("header"));
     (header, lines.map(split).collect())

@@ -25,6 +25,7 @@ pub use scene::Scene;
 
 use crate::error::{Error, Result};
 use crate::io::PendingFolder;
+use crate::run::RunContext;
 
 #[derive(clap::Args, Debug)]
 pub struct RenderArgs {
@@ -42,7 +43,7 @@ pub struct RenderArgs {
     /// Override the scene's seed.
     #[arg(long)]
     pub seed: Option<u64>,
-    /// Worker threads (default: all cores).
+    /// Worker threads, 1 to 1024 (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
     /// Use the all-effects integrator instead of the one specialised to the scene (for comparisons).
@@ -68,15 +69,8 @@ pub fn run(args: &RenderArgs, quiet: bool) -> Result<()> {
     } else {
         scene.effects
     };
-    let pool = {
-        let mut b = rayon::ThreadPoolBuilder::new();
-        if let Some(n) = args.threads {
-            b = b.num_threads(n);
-        }
-        b.build()
-            .map_err(|e| Error::Runtime(format!("cannot start worker threads: {e}")))?
-    };
-    if !quiet {
+    let ctx = RunContext::new(args.threads, !quiet, seed)?;
+    if ctx.progress {
         let names = effects.names();
         let list = if names.is_empty() {
             "diffuse only".to_string()
@@ -97,7 +91,7 @@ pub fn run(args: &RenderArgs, quiet: bool) -> Result<()> {
         jobs.push((args.reference_spp, true));
     }
     for (spp, reference) in jobs {
-        let bar = if quiet {
+        let bar = if !ctx.progress {
             ProgressBar::hidden()
         } else {
             ProgressBar::new(0)
@@ -113,20 +107,21 @@ pub fn run(args: &RenderArgs, quiet: bool) -> Result<()> {
                 .progress_chars("=> "),
         );
         bar.set_message(label.clone());
-        let r = pool.install(|| render(&scene, spp, seed_for(seed, spp, reference), effects, &bar));
+        let seed = seed_for(ctx.seed, spp, reference);
+        let r = ctx.install(|| render(&scene, spp, seed, effects, &bar));
         bar.finish_and_clear();
         if reference {
             output::write_reference(dir, &r)?;
         } else {
             output::write_buffers(&dir.join(format!("spp{spp}")), &r)?;
         }
-        if !quiet {
+        if ctx.progress {
             let samples = r.stats.paths as f64;
             eprintln!(
                 "gsid: {label}: {:.2} s, {:.2} M samples/s on {} threads",
                 r.seconds,
                 samples / r.seconds / 1e6,
-                pool.current_num_threads()
+                ctx.threads()
             );
         }
     }

@@ -53,25 +53,25 @@ const DEMODULATION_EPS: f32 = 0.01;
 /// Most passes accepted: pass 12 would space taps 4096 pixels apart.
 pub const MAX_ITERATIONS: u32 = 12;
 
-fn range_err(key: &str, value: impl std::fmt::Display, range: &str) -> Error {
-    Error::config(key, format!("is {value}, allowed range is {range}"))
-}
-
 impl AtrousParams {
     /// Checks every key against its allowed range; the error names the key.
     pub fn validate(&self) -> Result<()> {
         if !(1..=MAX_ITERATIONS).contains(&self.iterations) {
-            return Err(range_err(
+            return Err(Error::range(
                 "iterations",
                 self.iterations,
                 &format!("1 to {MAX_ITERATIONS}"),
             ));
         }
         if !(1e-6..=1e6).contains(&self.sigma) {
-            return Err(range_err("sigma", self.sigma, "1e-6 to 1e6"));
+            return Err(Error::range("sigma", self.sigma, "1e-6 to 1e6"));
         }
         if !(self.exposure > 0.0 && self.exposure <= 1e6) {
-            return Err(range_err("exposure", self.exposure, "above 0, at most 1e6"));
+            return Err(Error::range(
+                "exposure",
+                self.exposure,
+                "above 0, at most 1e6",
+            ));
         }
         self.weights.validate()
     }

@@ -52,37 +52,37 @@ impl Default for GsidParams {
     }
 }
 
-fn range_err(key: &str, value: impl std::fmt::Display, range: &str) -> Error {
-    Error::config(key, format!("is {value}, allowed range is {range}"))
-}
-
 impl GsidParams {
     /// Checks every key against its allowed range; the error names the key.
     pub fn validate(&self) -> Result<()> {
         if !(1e-6..=1e6).contains(&self.sigma) {
-            return Err(range_err("sigma", self.sigma, "1e-6 to 1e6"));
+            return Err(Error::range("sigma", self.sigma, "1e-6 to 1e6"));
         }
         if !(1..=100_000).contains(&self.walks) {
-            return Err(range_err("walks", self.walks, "1 to 100000"));
+            return Err(Error::range("walks", self.walks, "1 to 100000"));
         }
         if !(self.p_min > 0.0 && self.p_min < 1.0) {
-            return Err(range_err(
+            return Err(Error::range(
                 "p_min",
                 self.p_min,
                 "between 0 and 1 (exclusive)",
             ));
         }
         if !(1..=100_000).contains(&self.max_steps) {
-            return Err(range_err("max_steps", self.max_steps, "1 to 100000"));
+            return Err(Error::range("max_steps", self.max_steps, "1 to 100000"));
         }
         if self.window > 1024 {
-            return Err(range_err("window", self.window, "0 (unbounded) to 1024"));
+            return Err(Error::range("window", self.window, "0 (unbounded) to 1024"));
         }
         if !(0.0..=1e6).contains(&self.self_weight) {
-            return Err(range_err("self_weight", self.self_weight, "0 to 1e6"));
+            return Err(Error::range("self_weight", self.self_weight, "0 to 1e6"));
         }
         if !(self.exposure > 0.0 && self.exposure <= 1e6) {
-            return Err(range_err("exposure", self.exposure, "above 0, at most 1e6"));
+            return Err(Error::range(
+                "exposure",
+                self.exposure,
+                "above 0, at most 1e6",
+            ));
         }
         self.weights.validate()
     }

@@ -13,6 +13,8 @@ use std::time::Instant;
 
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
+pub use crate::spec::StageIo;
+use crate::spec::StageSpec;
 
 /// What every stage run can use and report into.
 pub struct Context {
@@ -55,13 +57,6 @@ pub struct StageReport {
     pub walk_steps: u64,
 }
 
-/// Names of a stage's input and output buffers.
-#[derive(Clone, Debug, PartialEq)]
-pub struct StageIo {
-    pub input: String,
-    pub output: String,
-}
-
 /// A configured stage, ready to run.
 pub trait Stage: Send + Sync {
     /// The stage's id in its pipeline (its kind unless the file gives an `id`).
@@ -101,18 +96,51 @@ pub trait Stage: Send + Sync {
 /// The stage kinds gsid knows, for error messages.
 pub const KINDS: &[&str] = &["atrous", "gsid", "outlier", "pyramid"];
 
-/// Builds a stage of `kind` from its parameter table.
-pub fn build(kind: &str, id: &str, io: StageIo, params: toml::Table) -> Result<Box<dyn Stage>> {
-    match kind {
-        "atrous" => Ok(Box::new(atrous::AtrousStage::from_table(id, io, params)?)),
-        "gsid" => Ok(Box::new(gsid::GsidStage::from_table(id, io, params)?)),
-        "outlier" => Ok(Box::new(outlier::OutlierStage::from_table(id, io, params)?)),
-        "pyramid" => Ok(Box::new(pyramid::PyramidStage::from_table(id, io, params)?)),
+/// Builds a stage from its spec: a composite kind from its children and overrides, any other kind
+/// from its parameter table alone.
+pub fn build(spec: &StageSpec) -> Result<Box<dyn Stage>> {
+    let (id, io) = (spec.id.as_str(), spec.io.clone());
+    if spec.kind != "pyramid" && KINDS.contains(&spec.kind.as_str()) {
+        leaf_only(spec)?;
+    }
+    let params = || spec.params.clone();
+    match spec.kind.as_str() {
+        "atrous" => Ok(Box::new(atrous::AtrousStage::from_table(id, io, params())?)),
+        "gsid" => Ok(Box::new(gsid::GsidStage::from_table(id, io, params())?)),
+        "outlier" => Ok(Box::new(outlier::OutlierStage::from_table(
+            id,
+            io,
+            params(),
+        )?)),
+        "pyramid" => Ok(Box::new(pyramid::PyramidStage::from_spec(spec)?)),
         other => Err(Error::config(
             format!("{id}.kind"),
             format!("unknown stage kind `{other}` (known: {})", KINDS.join(", ")),
         )),
     }
+}
+
+/// Rejects a sub-list or per-level overrides on a stage kind that runs no sub-stages.
+fn leaf_only(spec: &StageSpec) -> Result<()> {
+    let composite = |key: &str, what: &str| {
+        Err(Error::config(
+            format!("{}.{key}", spec.id),
+            format!(
+                "a {} stage takes no {what}; only pyramid stages do",
+                spec.kind
+            ),
+        ))
+    };
+    if !spec.children.is_empty() {
+        return composite("stages", "sub-list");
+    }
+    if let Some(key) = spec.overrides.levels.keys().next() {
+        return composite(key, "per-level overrides");
+    }
+    if let Some(key) = spec.overrides.every_level.keys().next() {
+        return composite(key, "sub-stage overrides");
+    }
+    Ok(())
 }
 
 /// The pixels a stage must avoid: buffer `name` read as one channel, > 0.5 = masked, checked to

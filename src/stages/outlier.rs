@@ -50,10 +50,6 @@ impl Default for OutlierParams {
     }
 }
 
-fn range_err(key: &str, value: impl std::fmt::Display, range: &str) -> Error {
-    Error::config(key, format!("is {value}, allowed range is {range}"))
-}
-
 impl OutlierParams {
     /// Checks every key against its allowed range; the error names the key.
     pub fn validate(&self) -> Result<()> {
@@ -65,32 +61,32 @@ impl OutlierParams {
                 Rule::Percentile => (1.0, 1000.0, "1 to 1000 (for rule percentile)"),
             };
             if !(lo..=hi).contains(&t) {
-                return Err(range_err("threshold", t, range));
+                return Err(Error::range("threshold", t, range));
             }
         }
         if let Some(r) = self.radius {
             if !(1..=16).contains(&r) {
-                return Err(range_err("radius", r, "1 to 16"));
+                return Err(Error::range("radius", r, "1 to 16"));
             }
         }
         if self.mask.is_empty() {
             return Err(Error::config("mask", "must name a buffer"));
         }
         if !(0.0..=10.0).contains(&self.mad_floor) {
-            return Err(range_err("mad_floor", self.mad_floor, "0 to 10"));
+            return Err(Error::range("mad_floor", self.mad_floor, "0 to 10"));
         }
         if !(0.0..=1.0).contains(&self.std_floor) {
-            return Err(range_err("std_floor", self.std_floor, "0 to 1"));
+            return Err(Error::range("std_floor", self.std_floor, "0 to 1"));
         }
         if !(self.albedo_tol > 0.0 && self.albedo_tol <= 2.0) {
-            return Err(range_err(
+            return Err(Error::range(
                 "albedo_tol",
                 self.albedo_tol,
                 "above 0, at most 2",
             ));
         }
         if !(self.normal_tol > 0.0 && self.normal_tol <= 1.0) {
-            return Err(range_err(
+            return Err(Error::range(
                 "normal_tol",
                 self.normal_tol,
                 "above 0, at most 1",

@@ -22,10 +22,10 @@ use serde::{Deserialize, Serialize};
 use super::{parse_params, Context, Stage, StageIo};
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
-use crate::pipeline::{parse_stage_list, StageSpec};
 use crate::pyramid::{self, BlendDomain};
+use crate::spec::StageSpec;
 
-/// The pyramid's own parameters (sub-stages and overrides are parsed separately).
+/// The pyramid's own parameters (its sub-stages and their overrides are parts of its [`StageSpec`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PyramidParams {
@@ -62,17 +62,15 @@ const MAX_LEVELS: u32 = 12;
 impl PyramidParams {
     pub fn validate(&self) -> Result<()> {
         if !(1..=MAX_LEVELS).contains(&self.levels) {
-            return Err(Error::config(
+            return Err(Error::range(
                 "levels",
-                format!("is {}, allowed range is 1 to {MAX_LEVELS}", self.levels),
+                self.levels,
+                &format!("1 to {MAX_LEVELS}"),
             ));
         }
         for (i, b) in self.blend.iter().enumerate() {
             if !(0.0..=4.0).contains(b) {
-                return Err(Error::config(
-                    format!("blend[{i}]"),
-                    format!("is {b}, allowed range is 0 to 4"),
-                ));
+                return Err(Error::range(&format!("blend[{i}]"), b, "0 to 4"));
             }
         }
         Ok(())
@@ -83,75 +81,37 @@ pub struct PyramidStage {
     id: String,
     io: StageIo,
     pub params: PyramidParams,
-    /// The sub-stages as written (used by `ablate` to flatten the pyramid).
-    pub sub_specs: Vec<StageSpec>,
+    /// The sub-stages as written: their buffers are what the pyramid reads and writes.
+    children: Vec<StageSpec>,
     /// Built sub-stages per level.
     levels: Vec<Vec<Box<dyn Stage>>>,
 }
 
-/// Deep-merges `over` into `base` (tables merge key by key, other values replace).
-fn merge(base: &mut toml::Table, over: &toml::Table) {
-    for (k, v) in over {
-        match (base.get_mut(k), v) {
-            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge(b, o),
-            _ => {
-                base.insert(k.clone(), v.clone());
-            }
-        }
-    }
-}
-
-fn level_key(key: &str) -> Option<usize> {
-    key.strip_prefix("level").and_then(|n| n.parse().ok())
-}
-
 impl PyramidStage {
-    pub fn from_table(id: &str, io: StageIo, mut table: toml::Table) -> Result<Self> {
-        let subs = match table.remove("stages") {
-            Some(toml::Value::Array(a)) => parse_stage_list(a, &format!("{id}.stages"))?,
-            Some(_) => {
-                return Err(Error::config(
-                    format!("{id}.stages"),
-                    "must be an array of tables ([[stage.stages]])",
-                ))
-            }
-            None => Vec::new(),
-        };
-        let mut all_levels = toml::Table::new();
-        let mut per_level: Vec<(usize, String, toml::Table)> = Vec::new();
-        let keys: Vec<String> = table.keys().cloned().collect();
-        for key in keys {
-            if let Some(l) = level_key(&key) {
-                let Some(toml::Value::Table(t)) = table.remove(&key) else {
-                    return Err(Error::config(
-                        format!("{id}.{key}"),
-                        "must be a table of sub-stage overrides",
-                    ));
-                };
-                per_level.push((l, key, t));
-            } else if subs.iter().any(|s| s.id == key) {
-                let Some(toml::Value::Table(t)) = table.remove(&key) else {
-                    return Err(Error::config(
-                        format!("{id}.{key}"),
-                        "must be a table of parameter overrides",
-                    ));
-                };
-                all_levels.insert(key, toml::Value::Table(t));
-            }
-        }
-        let params: PyramidParams = parse_params(id, table)?;
+    /// Builds the sub-stages of every level: each child with its every-level overrides, then those
+    /// of its level, merged into its parameters.
+    pub fn from_spec(spec: &StageSpec) -> Result<Self> {
+        let id = spec.id.as_str();
+        let params: PyramidParams = parse_params(id, spec.params.clone())?;
         params.validate().map_err(|e| e.in_context(id))?;
-        for (l, key, t) in &per_level {
-            if *l >= params.levels as usize {
+        let names_child = |k: &String| spec.children.iter().any(|c| &c.id == k);
+        if let Some(bad) = spec.overrides.every_level.keys().find(|k| !names_child(k)) {
+            return Err(Error::config(
+                format!("{id}.{bad}"),
+                "names no sub-stage of this pyramid",
+            ));
+        }
+        for (key, o) in &spec.overrides.levels {
+            if o.level >= params.levels as usize {
                 return Err(Error::config(
                     format!("{id}.{key}"),
                     format!(
-                        "level {l} does not exist (levels = {}; level0 is full size)",
-                        params.levels
+                        "level {} does not exist (levels = {}; level0 is full size)",
+                        o.level, params.levels
                     ),
                 ));
             }
-            if let Some(bad) = t.keys().find(|k| !subs.iter().any(|s| &s.id == *k)) {
+            if let Some(bad) = o.stages.keys().find(|k| !names_child(k)) {
                 return Err(Error::config(
                     format!("{id}.{key}.{bad}"),
                     "names no sub-stage of this pyramid",
@@ -161,36 +121,34 @@ impl PyramidStage {
         let mut levels = Vec::new();
         for l in 0..params.levels as usize {
             let mut built: Vec<Box<dyn Stage>> = Vec::new();
-            for sub in &subs {
-                let mut p = sub.params.clone();
+            for child in &spec.children {
+                let mut sub = child.clone();
                 let mut context = id.to_string();
-                if let Some(toml::Value::Table(o)) = all_levels.get(&sub.id) {
-                    merge(&mut p, o);
+                if let Some(o) = spec.overrides.every_level.get(&child.id) {
+                    sub.merge(o).map_err(|e| e.in_context(&context))?;
                 }
-                for (_, key, t) in per_level.iter().filter(|(pl, _, _)| *pl == l) {
-                    if let Some(toml::Value::Table(o)) = t.get(&sub.id) {
-                        merge(&mut p, o);
+                for (key, o) in spec.overrides.levels.iter().filter(|(_, o)| o.level == l) {
+                    if let Some(t) = o.stages.get(&child.id) {
                         context = format!("{id}.{key}");
+                        sub.merge(t).map_err(|e| e.in_context(&context))?;
                     }
                 }
-                let stage = super::build(&sub.kind, &sub.id, sub.io.clone(), p)
-                    .map_err(|e| e.in_context(&context))?;
-                built.push(stage);
+                built.push(super::build(&sub).map_err(|e| e.in_context(&context))?);
             }
             levels.push(built);
         }
         Ok(PyramidStage {
             id: id.to_string(),
-            io,
+            io: spec.io.clone(),
             params,
-            sub_specs: subs,
+            children: spec.children.clone(),
             levels,
         })
     }
 
     /// The buffer a level's result is read from: the last sub-stage's output, or the input colour.
     fn level_output(&self) -> String {
-        self.sub_specs
+        self.children
             .last()
             .map_or_else(|| self.io.input.clone(), |s| s.io.output.clone())
     }
@@ -207,7 +165,7 @@ impl Stage for PyramidStage {
 
     fn writes(&self) -> Vec<String> {
         // Level 0 runs in place, so its sub-stages' buffers remain afterwards.
-        let mut w: Vec<String> = self.sub_specs.iter().map(|s| s.io.output.clone()).collect();
+        let mut w: Vec<String> = self.children.iter().map(|s| s.io.output.clone()).collect();
         w.push(self.io.output.clone());
         w
     }

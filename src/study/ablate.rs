@@ -8,12 +8,13 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+use super::table;
 use crate::buffers::Buffers;
 use crate::error::Result;
 use crate::features::Weights;
 use crate::image::Image;
 use crate::metrics;
-use crate::pipeline::PipelineSpec;
+use crate::spec::{PipelineSpec, StageSpec};
 
 /// One row of the ablation table.
 #[derive(Clone, Debug, Serialize)]
@@ -34,25 +35,16 @@ pub struct Variant {
 }
 
 /// `--set` paths that reach every stage with feature weights (gsid and atrous) of `spec` (top
-/// level, or inside a pyramid).
+/// level, or a composite stage's child).
 fn feature_paths(spec: &PipelineSpec) -> Vec<String> {
+    let weighted = |s: &StageSpec| matches!(s.kind.as_str(), "gsid" | "atrous");
     let mut paths = Vec::new();
     for s in &spec.stages {
-        match s.kind.as_str() {
-            "gsid" | "atrous" => paths.push(s.id.clone()),
-            "pyramid" => {
-                if let Some(toml::Value::Array(subs)) = s.params.get("stages") {
-                    for sub in subs {
-                        let kind = sub.get("kind").and_then(|k| k.as_str());
-                        if let Some(kind @ ("gsid" | "atrous")) = kind {
-                            let id = sub.get("id").and_then(|i| i.as_str()).unwrap_or(kind);
-                            paths.push(format!("{}.{id}", s.id));
-                        }
-                    }
-                }
-            }
-            _ => {}
+        if weighted(s) {
+            paths.push(s.id.clone());
         }
+        let children = s.children.iter().filter(|c| weighted(c));
+        paths.extend(children.map(|c| format!("{}.{}", s.id, c.id)));
     }
     paths
 }
@@ -68,10 +60,8 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
             let mut v = spec.clone();
             let name = if stage.kind == "pyramid" {
                 // One level: the sub-stages at full size, with only the overrides that apply there.
-                v.stages[i]
-                    .params
-                    .retain(|k, _| !(k.starts_with("level") && k != "levels" && k != "level0"));
-                v.apply_set(&format!("{}.levels=1", stage.id))?;
+                v.stages[i].overrides.levels.retain(|_, o| o.level == 0);
+                v.stages[i].set(&["levels"], toml::Value::Integer(1))?;
                 format!("without {} (single scale)", stage.id)
             } else if spec.stages.len() > 1 {
                 v.stages.remove(i);
@@ -87,7 +77,7 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
         for name in Weights::NAMES {
             let mut v = spec.clone();
             for p in &paths {
-                v.apply_set(&format!("{p}.weights.{name}=0.0"))?;
+                v.set(&format!("{p}.weights.{name}"), toml::Value::Float(0.0))?;
             }
             out.push(Variant {
                 name: format!("weight {name} = 0"),
@@ -148,13 +138,20 @@ pub fn table(rows: &[Row]) -> String {
 }
 
 /// The rows as CSV.
-pub fn csv(rows: &[Row]) -> String {
-    let mut t = String::from("variant,ssim,psnr,relmse,seconds,delta_ssim\n");
-    for r in rows {
-        t += &format!(
-            "\"{}\",{},{},{},{},{}\n",
-            r.variant, r.ssim, r.psnr, r.relmse, r.seconds, r.delta_ssim
-        );
-    }
-    t
+pub fn csv(rows: &[Row]) -> Result<String> {
+    let header = ["variant", "ssim", "psnr", "relmse", "seconds", "delta_ssim"].map(String::from);
+    let fields: Vec<[String; 6]> = rows
+        .iter()
+        .map(|r| {
+            [
+                r.variant.clone(),
+                r.ssim.to_string(),
+                r.psnr.to_string(),
+                r.relmse.to_string(),
+                r.seconds.to_string(),
+                r.delta_ssim.to_string(),
+            ]
+        })
+        .collect();
+    table::csv(&header, &fields)
 }
