@@ -236,16 +236,10 @@ fn independent_denoise(set: &Set, p: &Params, seed: u64, variant: Variant) -> Ve
             for k in 1..=p.max_steps {
                 let here = (y * w as isize + x) as usize;
                 let mut next: Vec<(usize, f64)> = Vec::with_capacity(8);
-                for (dx, dy) in [
-                    (-1, -1),
-                    (0, -1),
-                    (1, -1),
-                    (-1, 0),
-                    (1, 0),
-                    (-1, 1),
-                    (0, 1),
-                    (1, 1),
-                ] {
+                for (dx, dy) in (-1..=1).flat_map(|dy| (-1..=1).map(move |dx| (dx, dy))) {
+                    if (dx, dy) == (0, 0) {
+                        continue;
+                    }
                     let (nx, ny) = (x + dx, y + dy);
                     let inside = nx >= 0 && ny >= 0 && nx < w as isize && ny < h as isize;
                     if !inside || (nx - x0).abs() > r || (ny - y0).abs() > r {
@@ -378,49 +372,52 @@ fn crop_set(dir: &Path) -> Set {
         24,
     );
     set.write(dir);
+    let f = Features::new(&set, GSID_WEIGHTS);
+    let dot = |i: usize, j: usize| (0..3).map(|k| f.normal[i][k] * f.normal[j][k]).sum::<f64>();
+    let creases = (0..24 * 23)
+        .filter(|&i| dot(i + i / 23, i + i / 23 + 1) < 0.5)
+        .count();
+    assert!(
+        creases >= 10,
+        "the crop must hold edges between surfaces, has {creases}"
+    );
+    eprintln!("crop: {creases} horizontal neighbour pairs across a crease");
     set
 }
 
 const CROP: (usize, usize) = (24, 70);
 
-#[test]
-fn gsid_walks_match_an_independent_implementation_of_the_spec() {
+/// The crop through `pipeline` (whose file sets σ and `weights`) and through the independent version.
+fn compare(pipeline: &str, sigma: f64, weights: [f64; 8], wrong: &[Variant]) {
     let tmp = tempfile::tempdir().unwrap();
     let set = crop_set(tmp.path());
     let params = Params {
-        sigma: 1.0,
+        sigma,
         walks: WALKS,
         p_min: 1e-6,
         max_steps: 64,
         window: 4,
-        weights: GSID_WEIGHTS,
+        weights,
     };
-    check(
-        tmp.path(),
-        &set,
+    check(tmp.path(), &set, pipeline, &params, wrong);
+}
+
+#[test]
+fn gsid_walks_match_an_independent_implementation_of_the_spec() {
+    compare(
         "gsid",
-        &params,
+        1.0,
+        GSID_WEIGHTS,
         &[Variant::NoStepTerm, Variant::WeightExpL, Variant::NoNormal],
     );
 }
 
 #[test]
 fn sid_walks_match_an_independent_implementation_of_the_spec() {
-    let tmp = tempfile::tempdir().unwrap();
-    let set = crop_set(tmp.path());
-    let params = Params {
-        sigma: 0.1,
-        walks: WALKS,
-        p_min: 1e-6,
-        max_steps: 64,
-        window: 4,
-        weights: SID_WEIGHTS,
-    };
-    check(
-        tmp.path(),
-        &set,
+    compare(
         "sid",
-        &params,
+        0.1,
+        SID_WEIGHTS,
         &[Variant::NoStepTerm, Variant::WeightExpL],
     );
 }
