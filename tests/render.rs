@@ -133,15 +133,21 @@ fn glass_sphere_neither_gains_nor_loses_energy() {
 fn a_scene_without_glass_never_samples_refraction() {
     let s = scene("cornell");
     assert!(!s.effects.refraction);
-    // Not even through the all-effects integrator: there is nothing to refract.
+    let glass = scene("caustics");
+    assert!(glass.effects.refraction && glass.effects.reflection && !glass.effects.textures);
+    // The all-effects integrator can refract: it does on glass, so its zero on the box means something.
+    assert!(draw(&glass, 1, 3, EffectSet::ALL).stats.refractions > 0);
     for fx in [s.effects, EffectSet::ALL] {
         let r = draw(&s, 2, 3, fx);
         assert_eq!(r.stats.refractions, 0);
         assert!(r.stats.paths == 2 * 128 * 128);
     }
-    let glass = scene("caustics");
-    assert!(glass.effects.refraction && glass.effects.reflection && !glass.effects.textures);
     assert!(draw(&glass, 1, 3, glass.effects).stats.refractions > 0);
+    // Glass with refraction switched off: its integrator is counted like any other and must not refract.
+    let text = std::fs::read_to_string(root().join("fixtures/scenes/caustics.toml")).unwrap();
+    let off = scene_text(&format!("{text}\n[effects]\nrefraction = false\n"));
+    assert!(!off.effects.refraction && off.effects.reflection);
+    assert_eq!(draw(&off, 1, 3, off.effects).stats.refractions, 0);
 }
 
 #[test]

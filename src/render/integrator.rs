@@ -226,7 +226,8 @@ pub fn trace<E: Effects>(
         let Some(bs) = mat.sample::<E>(albedo, wo, u) else {
             break;
         };
-        if E::REFRACTION && bs.eta != 1.0 {
+        // Not gated on E::REFRACTION: an integrator without the effect that still refracted would show.
+        if bs.eta != 1.0 {
             stats.refractions += 1;
             eta_scale *= bs.eta * bs.eta;
         }
