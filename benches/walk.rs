@@ -7,7 +7,7 @@ use std::path::Path;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use gsid::features::{Features, Tone, Weights};
-use gsid::walk::{denoise_reference, denoise_with, Kernel, WalkInput, WalkParams};
+use gsid::walk::{self, Engine, FeatureSource, Kernel, WalkJob, WalkParams};
 use gsid::{condition, io};
 
 fn bench_walks(c: &mut Criterion) {
@@ -24,18 +24,13 @@ fn bench_walks(c: &mut Criterion) {
         1.0,
     )
     .unwrap();
-    let input = WalkInput {
-        color,
-        features: &features,
-        mask: None,
-        seed: 0,
-        level: 0,
-        origin: 0,
-    };
     let params = WalkParams::default();
-    let steps = denoise_with(Kernel::Scalar, &input, &params, &|| {})
-        .1
-        .steps;
+    let job = |engine| WalkJob {
+        engine,
+        ..WalkJob::new(color, FeatureSource::Whole(&features), &params)
+    };
+    let run = |job: &WalkJob| walk::run(job).unwrap();
+    let steps = run(&job(Engine::Fast(Kernel::Scalar))).1.steps;
 
     for threads in [1usize, 2] {
         let pool = rayon::ThreadPoolBuilder::new()
@@ -50,14 +45,14 @@ fn bench_walks(c: &mut Criterion) {
             if !kernel.is_available() {
                 continue;
             }
+            let job = job(Engine::Fast(kernel));
             group.bench_function(format!("fast {kernel:?}"), |b| {
-                b.iter(|| pool.install(|| denoise_with(kernel, &input, &params, &|| {})))
+                b.iter(|| pool.install(|| run(&job)))
             });
         }
         if threads == 1 {
-            group.bench_function("reference", |b| {
-                b.iter(|| denoise_reference(&input, &params))
-            });
+            let job = job(Engine::Reference);
+            group.bench_function("reference", |b| b.iter(|| run(&job)));
         }
         group.finish();
     }

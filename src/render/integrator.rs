@@ -36,13 +36,8 @@ impl Sampler {
     }
 }
 
-/// SplitMix64 finaliser: spreads nearby integers over the whole seed space.
-pub fn mix(mut x: u64) -> u64 {
-    x = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    x ^ (x >> 31)
-}
+/// SplitMix64 (the walks' own): spreads nearby integers over the whole seed space.
+pub use crate::walk::rng::splitmix as mix;
 
 /// What one camera path contributes to the six buffers.
 #[derive(Clone, Copy, Debug)]

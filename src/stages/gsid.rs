@@ -7,7 +7,7 @@ use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::features::{Features, Tone, Weights};
 use crate::progress::Progress;
-use crate::walk::{self, WalkParams};
+use crate::walk::{self, FeatureSource, WalkJob, WalkParams};
 
 /// Parameters of the `gsid` stage (keys of its table in a pipeline file).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -36,14 +36,16 @@ pub struct GsidParams {
 }
 
 impl Default for GsidParams {
+    /// The walk parameters are the kernel's defaults ([`WalkParams::default`]).
     fn default() -> Self {
+        let walk = WalkParams::default();
         GsidParams {
-            sigma: 1.0,
-            walks: 20,
-            p_min: 1e-6,
-            max_steps: 64,
-            window: 4,
-            self_weight: 0.0,
+            sigma: walk.sigma,
+            walks: walk.walks,
+            p_min: walk.p_min,
+            max_steps: walk.max_steps,
+            window: walk.window.unwrap_or(0),
+            self_weight: walk.self_weight,
             weights: Weights::default(),
             tone: Tone::Reinhard,
             exposure: 1.0,
@@ -126,7 +128,8 @@ impl GsidStage {
     }
 }
 
-/// Runs the walk kernel on `buffers` with `params`: the stage's work, callable by composite stages.
+/// The `gsid` stage's work: denoises buffer `input` with the walk kernel, with features built
+/// strip by strip from `buffers`; returns the result and the walk steps taken.
 pub fn run_gsid(
     params: &GsidParams,
     input: &str,
@@ -170,16 +173,17 @@ pub fn run_gsid(
     };
     let walk_params = params.walk_params();
     let progress = Progress::new(ctx.progress, label, color.height() as u64);
-    let (out, stats) = walk::denoise_in_strips(
-        color,
-        &features_for,
-        mask.as_deref(),
-        ctx.seed,
-        ctx.level,
-        &walk_params,
-        walk::strip_rows(color.width()),
-        &|| progress.inc(1),
-    )?;
+    let features = FeatureSource::Strips {
+        build: &features_for,
+        rows: None,
+    };
+    let (out, stats) = walk::run(&WalkJob {
+        mask: mask.as_deref(),
+        seed: ctx.seed,
+        level: ctx.level,
+        on_row: &|| progress.inc(1),
+        ..WalkJob::new(color, features, &walk_params)
+    })?;
     progress.finish();
     Ok((out, stats.steps))
 }

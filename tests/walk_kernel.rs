@@ -4,9 +4,7 @@ mod common;
 
 use common::synthetic_set;
 use gsid::features::{Features, Tone, Weights};
-use gsid::walk::{
-    denoise, denoise_in_strips, denoise_reference, denoise_with, Kernel, WalkInput, WalkParams,
-};
+use gsid::walk::{self, Engine, FeatureSource, Kernel, WalkJob, WalkParams, WalkStats};
 use gsid::Image;
 use proptest::prelude::*;
 
@@ -22,22 +20,40 @@ fn bits(img: &Image) -> Vec<u32> {
     img.data().iter().map(|v| v.to_bits()).collect()
 }
 
+/// A job on whole-image `features` with `engine`.
+fn job<'a>(
+    color: &'a Image,
+    features: &'a Features,
+    params: &'a WalkParams,
+    engine: Engine,
+) -> WalkJob<'a> {
+    WalkJob {
+        engine,
+        ..WalkJob::new(color, FeatureSource::Whole(features), params)
+    }
+}
+
+fn run(job: &WalkJob) -> (Image, WalkStats) {
+    walk::run(job).expect("whole-image features")
+}
+
 fn run_both(
     color: &Image,
     features: &Features,
     mask: Option<&[bool]>,
     params: &WalkParams,
 ) -> (Image, Image) {
-    let input = WalkInput {
-        color,
-        features,
+    let fast_job = WalkJob {
         mask,
         seed: 3,
         level: 1,
-        origin: 0,
+        ..job(color, features, params, Engine::default())
     };
-    let (fast, fast_stats) = denoise(&input, params, &|| {});
-    let (slow, slow_stats) = denoise_reference(&input, params);
+    let (fast, fast_stats) = run(&fast_job);
+    let (slow, slow_stats) = run(&WalkJob {
+        engine: Engine::Reference,
+        ..fast_job
+    });
     assert_eq!(
         fast_stats, slow_stats,
         "both kernels take the same steps: {params:?}"
@@ -86,28 +102,15 @@ fn fast_kernel_equals_reference_bit_for_bit() {
 fn output_is_identical_on_one_and_two_threads() {
     let set = synthetic_set(31, 9);
     let color = set.get("color").unwrap();
-    let (features, _) = Features::build(
-        color,
-        set.features(),
-        &Weights::default(),
-        Tone::Reinhard,
-        1.0,
-    )
-    .unwrap();
-    let input = WalkInput {
-        color,
-        features: &features,
-        mask: None,
-        seed: 11,
-        level: 0,
-        origin: 0,
-    };
+    let (features, _) =
+        Features::build(color, set.features(), &Weights::default(), Tone::Reinhard, 1.0).unwrap();
     let params = WalkParams::default();
-    let run = |threads| {
-        let pool = pool(threads);
-        pool.install(|| denoise(&input, &params, &|| {}).0)
+    let input = WalkJob {
+        seed: 11,
+        ..job(color, &features, &params, Engine::default())
     };
-    assert_eq!(bits(&run(1)), bits(&run(2)));
+    let on = |threads| pool(threads).install(|| run(&input).0);
+    assert_eq!(bits(&on(1)), bits(&on(2)));
 }
 
 #[test]
@@ -127,18 +130,11 @@ fn levels_and_seeds_draw_different_walks() {
         ..WalkParams::default()
     };
     let out = |seed, level| {
-        denoise(
-            &WalkInput {
-                color,
-                features: &features,
-                mask: None,
-                seed,
-                level,
-                origin: 0,
-            },
-            &params,
-            &|| {},
-        )
+        run(&WalkJob {
+            seed,
+            level,
+            ..job(color, &features, &params, Engine::default())
+        })
         .0
     };
     assert_ne!(bits(&out(1, 0)), bits(&out(2, 0)));
@@ -212,17 +208,17 @@ fn every_kernel_equals_the_reference() {
                 max_steps,
                 ..WalkParams::default()
             };
-            let input = WalkInput {
-                color,
-                features: &features,
+            let input = WalkJob {
                 mask: Some(&mask),
                 seed: 11,
-                level: 0,
-                origin: 0,
+                ..job(color, &features, &params, Engine::Reference)
             };
-            let (want, want_stats) = denoise_reference(&input, &params);
+            let (want, want_stats) = run(&input);
             for kernel in [Kernel::Scalar, Kernel::Avx2] {
-                let (got, stats) = denoise_with(kernel, &input, &params, &|| {});
+                let (got, stats) = run(&WalkJob {
+                    engine: Engine::Fast(kernel),
+                    ..input
+                });
                 let case = format!("{kernel:?} σ {sigma} cap {max_steps} window {window:?}");
                 assert_eq!(stats, want_stats, "{case}");
                 assert_eq!(bits(&got), bits(&want), "{case}");
@@ -253,31 +249,22 @@ fn strips_equal_one_whole_image_run() {
                 window,
                 ..WalkParams::default()
             };
-            let whole = WalkInput {
-                color,
-                features: &features,
+            let whole = WalkJob {
                 mask: m,
                 seed: 3,
                 level: 1,
-                origin: 0,
+                ..job(color, &features, &params, Engine::default())
             };
-            let (want, want_stats) = denoise(&whole, &params, &|| {});
+            let (want, want_stats) = run(&whole);
             for (strip_rows, threads) in [(1, 2), (3, 1), (8, 3), (40, 2), (100, 2)] {
-                let pool = pool(threads);
-                let (got, stats) = pool
-                    .install(|| {
-                        denoise_in_strips(
-                            color,
-                            &features_for,
-                            m,
-                            3,
-                            1,
-                            &params,
-                            strip_rows,
-                            &|| {},
-                        )
-                    })
-                    .unwrap();
+                let strips = WalkJob {
+                    features: FeatureSource::Strips {
+                        build: &features_for,
+                        rows: Some(strip_rows),
+                    },
+                    ..whole
+                };
+                let (got, stats) = pool(threads).install(|| walk::run(&strips)).unwrap();
                 let case = format!(
                     "window {window:?}, strips of {strip_rows}, {threads} threads, mask {}",
                     m.is_some()
@@ -310,10 +297,16 @@ fn a_failed_strip_is_an_error_not_a_hang() {
         window: Some(2),
         ..WalkParams::default()
     };
+    let features = FeatureSource::Strips {
+        build: &features_for,
+        rows: Some(4),
+    };
+    let job = WalkJob {
+        seed: 1,
+        ..WalkJob::new(color, features, &params)
+    };
     for threads in [1, 2, 4] {
-        let pool = pool(threads);
-        let result = pool
-            .install(|| denoise_in_strips(color, &features_for, None, 1, 0, &params, 4, &|| {}));
+        let result = pool(threads).install(|| walk::run(&job));
         let err = result.expect_err("the broken strip fails the run");
         assert!(err.to_string().contains("broken for this test"), "{err}");
     }
