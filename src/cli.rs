@@ -15,6 +15,13 @@ use crate::run::RunContext;
 use crate::study::table::{self, Format};
 use crate::study::{ablate, sweep};
 
+/// `print!` that returns an error instead of panicking (see [`say`]).
+macro_rules! say {
+    ($($arg:tt)*) => {
+        say(format_args!($($arg)*))
+    };
+}
+
 #[derive(Parser, Debug)]
 #[command(
     name = "gsid",
@@ -155,7 +162,7 @@ pub fn main() -> i32 {
         }
     };
     match run(cli) {
-        Ok(()) => 0,
+        Ok(()) | Err(Error::StdoutClosed) => 0,
         Err(e) => {
             eprintln!("gsid: error: {e}");
             e.exit_code()
@@ -204,10 +211,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Eval(args) => eval(&args),
         Command::Ablate(args) => ablate(&args, cli.quiet),
         Command::Sweep(args) => sweep(&args, cli.quiet),
-        Command::Pipelines => {
-            list_pipelines();
-            Ok(())
-        }
+        Command::Pipelines => list_pipelines(),
     }
 }
 
@@ -376,7 +380,7 @@ fn ablate(args: &AblateArgs, quiet: bool) -> Result<()> {
         })
     })?;
     progress.finish();
-    print!("{}", ablate::table(&rows));
+    say!("{}", ablate::table(&rows))?;
     if let Some((format, pending)) = pending {
         let text = match format {
             Format::Json => table::json(&rows)?,
@@ -463,15 +467,14 @@ fn sweep_into(
             eprintln!("gsid: {line}");
         }
     }
-    print!("{}", sweep::table(&rows));
-    println!(
-        "wrote {}, {}, {} (seconds: median of {} in-process runs)",
+    say!("{}", sweep::table(&rows))?;
+    say!(
+        "wrote {}, {}, {} (seconds: median of {} in-process runs)\n",
         csv.display(),
         png.display(),
         svg.display(),
         args.repeat
-    );
-    Ok(())
+    )
 }
 
 fn eval(args: &EvalArgs) -> Result<()> {
@@ -500,21 +503,36 @@ fn eval(args: &EvalArgs) -> Result<()> {
             "psnr": if s.psnr.is_finite() { serde_json::json!(s.psnr) } else { serde_json::json!("inf") },
             "relmse": s.relmse,
         });
-        println!("{json}");
+        say!("{json}\n")
     } else {
-        println!(
-            "SSIM {:.4}  PSNR {:.2} dB  relMSE {:.5}",
-            s.ssim, s.psnr, s.relmse
-        );
+        say!(
+            "SSIM {:.4}  PSNR {:.2} dB  relMSE {:.5}\n",
+            s.ssim,
+            s.psnr,
+            s.relmse
+        )
+    }
+}
+
+fn list_pipelines() -> Result<()> {
+    for (name, _) in BUILTIN {
+        match PipelineSpec::resolve(name) {
+            Ok(spec) => say!("{name:<14} {}\n", spec.description)?,
+            Err(e) => say!("{name:<14} (invalid: {e})\n")?,
+        }
     }
     Ok(())
 }
 
-fn list_pipelines() {
-    for (name, _) in BUILTIN {
-        match PipelineSpec::resolve(name) {
-            Ok(spec) => println!("{name:<14} {}", spec.description),
-            Err(e) => println!("{name:<14} (invalid: {e})"),
-        }
-    }
+/// Writes to standard output. A reader that went away (`gsid pipelines | head -1`) ends the run
+/// quietly, as `ls | head` does; any other failure (a full disk) is an error, exit 1.
+fn say(text: std::fmt::Arguments) -> Result<()> {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    out.write_fmt(text)
+        .and_then(|()| out.flush())
+        .map_err(|e| match e.kind() {
+            std::io::ErrorKind::BrokenPipe => Error::StdoutClosed,
+            _ => Error::write("standard output", e),
+        })
 }

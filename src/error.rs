@@ -20,6 +20,9 @@ pub enum Error {
     /// Writing an output failed part way (disk full, an I/O error): a runtime failure.
     #[error("cannot write {}: {msg}", path.display())]
     Write { path: PathBuf, msg: String },
+    /// Standard output was closed by its reader: the run ends quietly, exit 0.
+    #[error("standard output closed")]
+    StdoutClosed,
     /// Any other bad usage (e.g. mismatched image sizes given to `eval`).
     #[error("{0}")]
     Usage(String),
@@ -74,6 +77,7 @@ impl Error {
     /// Process exit code, as FORMATS.md fixes it: 2 for bad usage or input, 1 for runtime failures.
     pub fn exit_code(&self) -> i32 {
         match self {
+            Error::StdoutClosed => 0,
             Error::Runtime(_) | Error::Write { .. } => 1,
             _ => 2,
         }

@@ -173,7 +173,11 @@ impl PendingOutput {
                 out.write_all(bytes).and_then(|()| out.flush())
             }
         };
-        written.map_err(|e| Error::write(&self.path, e))?;
+        written.map_err(|e| match (&self.target, e.kind()) {
+            // The reader took what it wanted (`gsid denoise … -o - | head -c 4`): end quietly.
+            (Target::Stdout, std::io::ErrorKind::BrokenPipe) => Error::StdoutClosed,
+            _ => Error::write(&self.path, e),
+        })?;
         self.commit()
     }
 

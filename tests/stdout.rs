@@ -1,0 +1,107 @@
+//! Standard output as scripts treat it: a reader that closes the pipe early (`gsid pipelines |
+//! head -1`) ends the run quietly with exit 0; a stdout that cannot be written (a full device)
+//! is one error line and exit 1; never a panic.
+
+mod common;
+
+use std::os::fd::{FromRawFd, OwnedFd};
+use std::path::Path;
+use std::process::{Command, Output, Stdio};
+
+use common::*;
+
+/// Runs gsid with `args` and a stdout whose reader is already closed, so the first write fails.
+fn into_closed_pipe(args: &[&str]) -> Output {
+    let mut fds = [0; 2];
+    // SAFETY: pipe writes two new descriptors into the array it is given.
+    assert_eq!(unsafe { libc::pipe(fds.as_mut_ptr()) }, 0);
+    // SAFETY: both descriptors were just created by pipe and are owned here alone.
+    let (read, write) = unsafe { (OwnedFd::from_raw_fd(fds[0]), OwnedFd::from_raw_fd(fds[1])) };
+    drop(read);
+    Command::new(env!("CARGO_BIN_EXE_gsid"))
+        .args(args)
+        .stdout(Stdio::from(write))
+        .stderr(Stdio::piped())
+        .output()
+        .expect("run gsid")
+}
+
+/// Every subcommand that writes to stdout, on small inputs in `dir`.
+fn commands(dir: &Path) -> Vec<Vec<String>> {
+    let set = dir.join("set");
+    if !set.exists() {
+        copy_fixture(1, dir);
+        std::fs::rename(dir.join("spp1"), &set).unwrap();
+    }
+    let set = set.to_str().unwrap().to_string();
+    let reference = dir.join("reference.exr").to_str().unwrap().to_string();
+    let sweep_out = dir.join("sweep").to_str().unwrap().to_string();
+    let strings = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+    vec![
+        strings(&["pipelines"]),
+        strings(&["eval", &reference, "--reference", &reference]),
+        strings(&["eval", &reference, "--reference", &reference, "--json"]),
+        strings(&["ablate", &set, "--pipeline", "gsid", "-q"]),
+        strings(&[
+            "sweep",
+            &set,
+            "--pipeline",
+            "gsid",
+            "--vary",
+            "gsid.walks=1,2",
+            "--repeat",
+            "1",
+            "--out",
+            &sweep_out,
+            "-q",
+        ]),
+        strings(&["denoise", &set, "--pipeline", "gsid", "-o", "-", "-q"]),
+    ]
+}
+
+fn args(v: &[String]) -> Vec<&str> {
+    v.iter().map(String::as_str).collect()
+}
+
+#[test]
+fn a_closed_pipe_ends_every_command_quietly() {
+    let tmp = tempfile::tempdir().unwrap();
+    for cmd in commands(tmp.path()) {
+        let run = into_closed_pipe(&args(&cmd));
+        let err = stderr(&run);
+        assert_eq!(run.status.code(), Some(0), "{cmd:?}: {err}");
+        assert!(!err.contains("panicked"), "{cmd:?}: {err}");
+        assert!(err.trim().is_empty(), "{cmd:?} printed: {err}");
+    }
+}
+
+#[test]
+fn a_full_stdout_is_one_error_line_and_exit_1() {
+    // SAFETY: geteuid has no preconditions.
+    if unsafe { libc::geteuid() } != 0 {
+        eprintln!("skipped: mknod needs root");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    // A node of its own: never the machine's /dev/full.
+    let full = tmp.path().join("full");
+    assert!(Command::new("mknod")
+        .arg(&full)
+        .args(["c", "1", "7"])
+        .status()
+        .unwrap()
+        .success());
+    for cmd in commands(tmp.path()) {
+        let out = std::fs::OpenOptions::new().write(true).open(&full).unwrap();
+        let run = Command::new(env!("CARGO_BIN_EXE_gsid"))
+            .args(args(&cmd))
+            .stdout(Stdio::from(out))
+            .output()
+            .unwrap();
+        let err = stderr(&run);
+        assert_eq!(run.status.code(), Some(1), "{cmd:?}: {err}");
+        assert!(!err.contains("panicked"), "{cmd:?}: {err}");
+        let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+        assert_eq!(lines.len(), 1, "{cmd:?}: {err}");
+    }
+}
