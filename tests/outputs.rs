@@ -41,15 +41,27 @@ fn mknod(dir: &Path, name: &str, major: u32, minor: u32) -> std::path::PathBuf {
     path
 }
 
-#[test]
-fn a_character_device_stays_a_device() {
+/// A temporary folder with a small render set and a device node `name` (root only, else `None`).
+fn set_and_device(
+    name: &str,
+    major: u32,
+    minor: u32,
+) -> Option<(tempfile::TempDir, String, std::path::PathBuf)> {
     if !is_root() {
         eprintln!("skipped: mknod needs root");
-        return;
+        return None;
     }
     let tmp = tempfile::tempdir().unwrap();
     let set = small_set(tmp.path());
-    let null = mknod(tmp.path(), "null", 1, 3);
+    let node = mknod(tmp.path(), name, major, minor);
+    Some((tmp, set, node))
+}
+
+#[test]
+fn a_character_device_stays_a_device() {
+    let Some((tmp, set, null)) = set_and_device("null", 1, 3) else {
+        return;
+    };
     let run = gsid(&["denoise", &set, "-o", null.to_str().unwrap(), "-q"]);
     assert!(run.status.success(), "{}", stderr(&run));
     let kind = std::fs::metadata(&null).unwrap().file_type();
@@ -63,13 +75,9 @@ fn a_character_device_stays_a_device() {
 
 #[test]
 fn a_write_failure_on_a_full_device_exits_1() {
-    if !is_root() {
-        eprintln!("skipped: mknod needs root");
+    let Some((_tmp, set, full)) = set_and_device("full", 1, 7) else {
         return;
-    }
-    let tmp = tempfile::tempdir().unwrap();
-    let set = small_set(tmp.path());
-    let full = mknod(tmp.path(), "full", 1, 7);
+    };
     let run = gsid(&["denoise", &set, "-o", full.to_str().unwrap(), "-q"]);
     assert_eq!(run.status.code(), Some(1), "{}", stderr(&run));
     assert!(stderr(&run).contains("full"), "{}", stderr(&run));
@@ -151,16 +159,12 @@ fn two_outputs_to_one_path_are_refused_before_any_work() {
     assert_bad_input(&run, "two outputs");
     let other = tmp.path().join("mask.exr");
     let other = other.to_str().unwrap();
-    let run = gsid(&[
-        "denoise",
-        &set,
-        "-o",
-        out,
-        "--save-buffer",
-        &format!("outlier_mask={other}"),
-        "--save-buffer",
-        &format!("color={other}"),
-    ]);
+    let saves = [format!("outlier_mask={other}"), format!("color={other}")];
+    let mut args = vec!["denoise", &set, "-o", out];
+    for save in &saves {
+        args.extend(["--save-buffer", save]);
+    }
+    let run = gsid(&args);
     assert_bad_input(&run, "two outputs");
     assert_eq!(files_in(tmp.path()), vec!["set"]);
 }

@@ -8,6 +8,19 @@ use gsid::walk::{self, Engine, FeatureSource, Kernel, WalkJob, WalkParams, WalkS
 use gsid::Image;
 use proptest::prelude::*;
 
+/// The features of `set` with the report's weights and the Reinhard tone curve.
+fn default_features(color: &Image, set: &gsid::Buffers) -> Features {
+    Features::build(
+        color,
+        set.features(),
+        &Weights::default(),
+        Tone::Reinhard,
+        1.0,
+    )
+    .unwrap()
+    .0
+}
+
 /// A rayon pool of `threads` threads.
 fn pool(threads: usize) -> rayon::ThreadPool {
     rayon::ThreadPoolBuilder::new()
@@ -65,14 +78,7 @@ fn run_both(
 fn fast_kernel_equals_reference_bit_for_bit() {
     let set = synthetic_set(23, 17);
     let color = set.get("color").unwrap();
-    let (features, _) = Features::build(
-        color,
-        set.features(),
-        &Weights::default(),
-        Tone::Reinhard,
-        1.0,
-    )
-    .unwrap();
+    let features = default_features(color, &set);
     let mask: Vec<bool> = (0..23 * 17).map(|i| i % 11 == 0).collect();
     // 1, 3 and 6 walks batch 8, 3 and 2 start pixels into the AVX2 kernel's slots (23 columns
     // leave a partial batch at the end of every row); 20 walks run one pixel at a time.
@@ -102,14 +108,7 @@ fn fast_kernel_equals_reference_bit_for_bit() {
 fn output_is_identical_on_one_and_two_threads() {
     let set = synthetic_set(31, 9);
     let color = set.get("color").unwrap();
-    let (features, _) = Features::build(
-        color,
-        set.features(),
-        &Weights::default(),
-        Tone::Reinhard,
-        1.0,
-    )
-    .unwrap();
+    let features = default_features(color, &set);
     let params = WalkParams::default();
     let input = WalkJob {
         seed: 11,
@@ -196,14 +195,7 @@ proptest! {
 fn every_kernel_equals_the_reference() {
     let set = synthetic_set(29, 13);
     let color = set.get("color").unwrap();
-    let (features, _) = Features::build(
-        color,
-        set.features(),
-        &Weights::default(),
-        Tone::Reinhard,
-        1.0,
-    )
-    .unwrap();
+    let features = default_features(color, &set);
     let mask: Vec<bool> = (0..29 * 13).map(|i| i % 7 == 3).collect();
     for (sigma, max_steps) in [(1e-3, 64), (0.05, 64), (1.0, 64), (50.0, 64), (50.0, 3)] {
         for window in [Some(2), Some(5)] {

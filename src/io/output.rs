@@ -67,6 +67,26 @@ fn parent_dir(path: &Path) -> PathBuf {
     }
 }
 
+/// A temporary file or folder (`make`) named `.gsid-*.tmp` in the folder `path` will be in, which
+/// must exist.
+fn temp_beside<T>(
+    path: &Path,
+    make: impl FnOnce(&tempfile::Builder, &Path) -> std::io::Result<T>,
+) -> Result<T> {
+    let dir = parent_dir(path);
+    if !dir.is_dir() {
+        return Err(Error::output(
+            path,
+            format!("folder {} does not exist", dir.display()),
+        ));
+    }
+    make(
+        tempfile::Builder::new().prefix(".gsid-").suffix(".tmp"),
+        &dir,
+    )
+    .map_err(|e| Error::output(path, e))
+}
+
 /// Where a reserved output's bytes go.
 enum Target {
     /// A temporary file beside the output, renamed over it once complete.
@@ -105,18 +125,7 @@ impl PendingOutput {
             }
             _ => {}
         }
-        let dir = parent_dir(path);
-        if !dir.is_dir() {
-            return Err(Error::output(
-                path,
-                format!("folder {} does not exist", dir.display()),
-            ));
-        }
-        let tmp = tempfile::Builder::new()
-            .prefix(".gsid-")
-            .suffix(".tmp")
-            .tempfile_in(&dir)
-            .map_err(|e| Error::output(path, e))?;
+        let tmp = temp_beside(path, |b, dir| b.tempfile_in(dir))?;
         let listed = Registered::new(tmp.path());
         Ok(PendingOutput {
             path: path.to_path_buf(),
@@ -244,18 +253,7 @@ impl PendingFolder {
         if path.exists() && !path.is_dir() {
             return Err(Error::output(path, "exists and is not a folder"));
         }
-        let dir = parent_dir(path);
-        if !dir.is_dir() {
-            return Err(Error::output(
-                path,
-                format!("folder {} does not exist", dir.display()),
-            ));
-        }
-        let tmp = tempfile::Builder::new()
-            .prefix(".gsid-")
-            .suffix(".tmp")
-            .tempdir_in(&dir)
-            .map_err(|e| Error::output(path, e))?;
+        let tmp = temp_beside(path, |b, dir| b.tempdir_in(dir))?;
         let listed = Registered::new(tmp.path());
         Ok(PendingFolder {
             path: path.to_path_buf(),
