@@ -95,7 +95,7 @@ fn flat_colour_with_lanes_3_and_7_blocked() {
     let (w, h) = (5, 4);
     let color = Image::from_fn(w, h, 3, |_, _, _| 0.5);
     let features = features_of(&color, &FeatureSet::default(), &Weights::color_only());
-    let blocked = |x: usize, y: usize| (x + 10 - 2 * y) % 5 == 0;
+    let blocked = |x: usize, y: usize| (x + 10 - 2 * y).is_multiple_of(5);
     let mask: Vec<bool> = (0..w * h).map(|i| blocked(i % w, i / w)).collect();
     // The mask does what the test claims: at (3, 1), lanes 3 (−1, 0) and 7 (+1, +1) only.
     let open: Vec<bool> = walk::OFFSETS
