@@ -1,4 +1,4 @@
-//! Walk kernel throughput, in walk steps per second (ALGORITHM.md §5).
+//! Walk kernel throughput, in walk steps per second (docs/ALGORITHM.md §5).
 //!
 //! Run: `cargo bench --bench walk`. Criterion's "elem/s" is walk steps per second on all threads;
 //! the `1 thread` group gives the per-core figure.

@@ -14,7 +14,7 @@ denoises the noisy colour with
 
 and scores every output, plus the noisy input, with the repository's own metric
 (`target/release/gsid eval IMAGE.exr --reference REF.exr --json`: SSIM on the clipped sRGB view,
-relMSE on linear HDR, ALGORITHM.md §5), so all methods are judged by identical code. OIDN and BM3D
+relMSE on linear HDR, docs/ALGORITHM.md §5), so all methods are judged by identical code. OIDN and BM3D
 outputs are written as float32 EXR to a temporary folder first. The result is a markdown table on
 stdout (progress goes to stderr); `--json PATH` also writes every row and the run's header as JSON.
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Scaling and memory of `gsid denoise` on render sets tiled from a fixture (ALGORITHM.md §5 targets):
+# Scaling and memory of `gsid denoise` on render sets tiled from a fixture (docs/ALGORITHM.md §5 targets):
 #   - time per pixel at 1 MP and 4 MP (median of RUNS whole-process runs, all threads);
 #   - 1 thread against 2 threads at 1 MP (runs alternate; medians);
 #   - what two cores give at all: one 1-thread run alone against two independent 1-thread runs at once

@@ -74,7 +74,7 @@ impl Error {
         Error::config(key, format!("is {value}, allowed range is {range}"))
     }
 
-    /// Process exit code, as FORMATS.md fixes it: 2 for bad usage or input, 1 for runtime failures.
+    /// Process exit code, as docs/FORMATS.md fixes it: 2 for bad usage or input, 1 for runtime failures.
     pub fn exit_code(&self) -> i32 {
         match self {
             Error::StdoutClosed => 0,

@@ -1,4 +1,4 @@
-//! Per-pixel feature vectors and the pixel difference d(i, j) of ALGORITHM.md §2.
+//! Per-pixel feature vectors and the pixel difference d(i, j) of docs/ALGORITHM.md §2.
 //!
 //! Each pixel's features are packed into one 16-float (64-byte) record with the weights already
 //! folded in, so the hot loop computes d(i, j) from two cache lines and no configuration:
@@ -30,7 +30,7 @@ pub const DEPTH_EPS: f32 = 1e-8;
 /// Record lanes that enter d (the rest is padding).
 pub const USED_LANES: usize = 14;
 
-/// The eight feature weights W1..W8 (ALGORITHM.md §2). Zero switches a feature off (and skips its buffer).
+/// The eight feature weights W1..W8 (docs/ALGORITHM.md §2). Zero switches a feature off (and skips its buffer).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Weights {
@@ -307,7 +307,7 @@ impl Features {
         &self.records[i]
     }
 
-    /// d(i, j) of ALGORITHM.md §2 between pixels `i` and `j` (row-major indices).
+    /// d(i, j) of docs/ALGORITHM.md §2 between pixels `i` and `j` (row-major indices).
     #[inline]
     pub fn distance(&self, i: usize, j: usize) -> f32 {
         distance(&self.records[i], &self.records[j], self.depth_weight)

@@ -1,6 +1,7 @@
 //! gsid: feature-guided stochastic image denoising for path-traced renders.
 //!
-//! See README.md for the module map. The maths is in ALGORITHM.md of the project's shared notes.
+//! See README.md for the module map; the maths is in docs/ALGORITHM.md, the formats and command
+//! forms in docs/FORMATS.md.
 
 pub mod atrous;
 pub mod buffers;

@@ -1,4 +1,4 @@
-//! Image quality scores by the project's protocol (ALGORITHM.md §5).
+//! Image quality scores by the project's protocol (docs/ALGORITHM.md §5).
 //!
 //! SSIM and PSNR are taken on the LDR view (clamp to [0, 1], then the sRGB curve); relMSE on linear
 //! HDR. SSIM reproduces scikit-image's `structural_similarity(gaussian_weights=True, sigma=1.5,

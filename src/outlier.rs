@@ -1,4 +1,4 @@
-//! Firefly (outlier) detection and repair (ALGORITHM.md §4), as plain kernels over `Image`s.
+//! Firefly (outlier) detection and repair (docs/ALGORITHM.md §4), as plain kernels over `Image`s.
 //!
 //! Low-spp renders carry salt-and-pepper outliers: a few pixels whose one lucky path hit a light.
 //! They are found by comparing a pixel's luminance with its neighbourhood (the centre itself is

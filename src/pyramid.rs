@@ -1,4 +1,4 @@
-//! Gaussian/Laplacian pyramids and Laplacian blending (ALGORITHM.md §4).
+//! Gaussian/Laplacian pyramids and Laplacian blending (docs/ALGORITHM.md §4).
 //!
 //! REDUCE is a sum-1 Gaussian (σ = 1 source pixel, close to the 5-tap binomial) followed by halving
 //! (odd sizes round up); EXPAND interpolates back to a stored size with the same Gaussian in coarse

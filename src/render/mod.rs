@@ -2,7 +2,7 @@
 //!
 //! A scene file ([`scene`]) is resolved into shapes, materials, textures and lights; the effects it calls
 //! for pick an integrator compiled for exactly that set ([`effects`], [`integrator`]); the six buffers of
-//! ALGORITHM.md §1 are averaged over each pixel's samples and written in the FORMATS.md layout ([`output`]).
+//! docs/ALGORITHM.md §1 are averaged over each pixel's samples and written in the docs/FORMATS.md layout ([`output`]).
 
 pub mod camera;
 pub mod effects;

@@ -1,4 +1,4 @@
-//! Writes a render set in the FORMATS.md layout: `scene.toml`, `reference.exr`, `spp<N>/<buffer>.exr`.
+//! Writes a render set in the docs/FORMATS.md layout: `scene.toml`, `reference.exr`, `spp<N>/<buffer>.exr`.
 
 use std::path::Path;
 

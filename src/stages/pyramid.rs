@@ -1,5 +1,5 @@
 //! The `pyramid` composite stage: run a sub-list of stages at every level of a Gaussian pyramid,
-//! then recombine the results by Laplacian blending (ALGORITHM.md §4).
+//! then recombine the results by Laplacian blending (docs/ALGORITHM.md §4).
 //!
 //! ```toml
 //! [[stage]]

@@ -1,4 +1,4 @@
-//! The random-walk kernel of SID/GSID (ALGORITHM.md §3).
+//! The random-walk kernel of SID/GSID (docs/ALGORITHM.md §3).
 //!
 //! From every start pixel x0, `walks` random walks step to one of the 8 neighbours with
 //! p ∝ exp(a), a = −(d(x0, y)² + d(x_j, y)²) / (2σ²). A walk stops once its log-probability

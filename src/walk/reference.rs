@@ -1,4 +1,4 @@
-//! The reference kernel: the readable specification of the walks (ALGORITHM.md §3), with every
+//! The reference kernel: the readable specification of the walks (docs/ALGORITHM.md §3), with every
 //! distance recomputed where a step needs it. The fast kernels must give its bits.
 
 use super::rng::{uniform, walk_key};

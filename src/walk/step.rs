@@ -1,4 +1,4 @@
-//! The step specification (ALGORITHM.md §3): how a walk picks its next neighbour from the 8
+//! The step specification (docs/ALGORITHM.md §3): how a walk picks its next neighbour from the 8
 //! weights, the weight of the pixel it reaches, and the f64 colour sums. Every kernel runs these
 //! operations in this order, so all of them give the same bits.
 
@@ -29,7 +29,7 @@ pub(super) fn prefix8(e: &[f32; 8]) -> [f32; 8] {
 }
 
 /// The first lane of weight > 0 whose cumulative weight exceeds `target`; if rounding put
-/// `target` above every such lane, the most likely lane (ALGORITHM.md §3).
+/// `target` above every such lane, the most likely lane (docs/ALGORITHM.md §3).
 ///
 /// The weight test is what keeps walks inside their window and the image: [`prefix8`]'s sums are
 /// not monotone to the last ulp (c[3] = (e3 + e2) + (e1 + e0) may exceed c[2] = (e2 + e1) + e0 with
