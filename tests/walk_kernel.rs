@@ -102,8 +102,14 @@ fn fast_kernel_equals_reference_bit_for_bit() {
 fn output_is_identical_on_one_and_two_threads() {
     let set = synthetic_set(31, 9);
     let color = set.get("color").unwrap();
-    let (features, _) =
-        Features::build(color, set.features(), &Weights::default(), Tone::Reinhard, 1.0).unwrap();
+    let (features, _) = Features::build(
+        color,
+        set.features(),
+        &Weights::default(),
+        Tone::Reinhard,
+        1.0,
+    )
+    .unwrap();
     let params = WalkParams::default();
     let input = WalkJob {
         seed: 11,

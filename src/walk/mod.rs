@@ -23,6 +23,8 @@
 
 #[cfg(target_arch = "x86_64")]
 mod avx2;
+#[cfg(target_arch = "x86_64")]
+mod avx2_weigh;
 mod band;
 mod reference;
 pub mod rng;
