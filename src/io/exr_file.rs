@@ -21,6 +21,11 @@ use crate::image::Image;
 
 pub use exr::prelude::Compression;
 
+/// Most pixels [`read`] accepts (2^28, a 16384² image): it allocates 4 bytes per pixel per channel
+/// asked for (12 for colour) whatever the file's sample types, so a header may not declare more
+/// than this, however small its samples.
+pub const MAX_PIXELS: u64 = 1 << 28;
+
 /// Reads the first non-deep layer of an EXR file at its full resolution as `channels` channels.
 pub fn read(path: &Path, channels: usize) -> Result<Image> {
     let bad = |e: exr::error::Error| Error::file(path, format!("not a readable EXR file ({e})"));
@@ -42,6 +47,17 @@ pub fn read(path: &Path, channels: usize) -> Result<Image> {
             format!(
                 "channel {} is subsampled, which is not supported",
                 list[*c].name
+            ),
+        ));
+    }
+    let pixels = header.layer_size.x() as u64 * header.layer_size.y() as u64;
+    if pixels > MAX_PIXELS {
+        return Err(Error::file(
+            path,
+            format!(
+                "its header declares {}x{} pixels, more than the {MAX_PIXELS} this program reads",
+                header.layer_size.x(),
+                header.layer_size.y()
             ),
         ));
     }
