@@ -33,9 +33,9 @@ fn run(args: &[&str]) -> (Option<i32>, String, i64) {
     (code, err, usage.ru_maxrss)
 }
 
-/// `gsid denoise` of a synthetic `w`×`h` set with `extra` arguments, asserting success and a peak
-/// RSS under `limit_kib`.
-fn denoise_within(w: usize, h: usize, extra: &[&str], limit_kib: i64) {
+/// Runs `gsid denoise -q` of a synthetic `w`×`h` set with `extra` arguments; returns what [`run`]
+/// does and whether the output was written.
+fn denoise(w: usize, h: usize, extra: &[&str]) -> (Option<i32>, String, i64, bool) {
     let dir = tempfile::tempdir().unwrap();
     let set = dir.path().join("set");
     write_set(&set, &synthetic_set(w, h));
@@ -49,8 +49,15 @@ fn denoise_within(w: usize, h: usize, extra: &[&str], limit_kib: i64) {
     ];
     args.extend_from_slice(extra);
     let (code, err, rss) = run(&args);
+    (code, err, rss, Path::new(&out).exists())
+}
+
+/// `gsid denoise` of a `w`×`h` set with `extra` arguments succeeds with a peak RSS under
+/// `limit_kib`.
+fn denoise_within(w: usize, h: usize, extra: &[&str], limit_kib: i64) {
+    let (code, err, rss, written) = denoise(w, h, extra);
     assert_eq!(code, Some(0), "{w}x{h} {extra:?} failed: {err}");
-    assert!(Path::new(&out).exists());
+    assert!(written);
     assert!(
         rss < limit_kib,
         "{w}x{h} {extra:?} peaked at {rss} KiB (limit {limit_kib} KiB)"
@@ -59,18 +66,7 @@ fn denoise_within(w: usize, h: usize, extra: &[&str], limit_kib: i64) {
 
 /// `gsid denoise` of a 3×2 set with `extra` arguments must exit 2 naming `key`.
 fn refused(extra: &[&str], key: &str) {
-    let dir = tempfile::tempdir().unwrap();
-    let set = dir.path().join("set");
-    write_set(&set, &synthetic_set(3, 2));
-    let out = dir.path().join("out.exr");
-    let mut args = vec![
-        "denoise",
-        set.to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-    ];
-    args.extend_from_slice(extra);
-    let (code, err, _) = run(&args);
+    let (code, err, _, _) = denoise(3, 2, extra);
     assert_eq!(code, Some(2), "{extra:?} was not refused: {err}");
     assert!(err.contains(key), "error does not name `{key}`: {err}");
 }

@@ -50,14 +50,13 @@ pub fn read(path: &Path, channels: usize) -> Result<Image> {
             ),
         ));
     }
+    let size = format!("{}x{}", header.layer_size.x(), header.layer_size.y());
     let pixels = header.layer_size.x() as u64 * header.layer_size.y() as u64;
     if pixels > MAX_PIXELS {
         return Err(Error::file(
             path,
             format!(
-                "its header declares {}x{} pixels, more than the {MAX_PIXELS} this program reads",
-                header.layer_size.x(),
-                header.layer_size.y()
+                "its header declares {size} pixels, more than the {MAX_PIXELS} this program reads"
             ),
         ));
     }
@@ -71,9 +70,7 @@ pub fn read(path: &Path, channels: usize) -> Result<Image> {
         return Err(Error::file(
             path,
             format!(
-                "not a readable EXR file (its header declares {}x{} pixels, more than a {file_len}-byte file can hold)",
-                header.layer_size.x(),
-                header.layer_size.y()
+                "not a readable EXR file (its header declares {size} pixels, more than a {file_len}-byte file can hold)"
             ),
         ));
     }
