@@ -13,6 +13,8 @@ use common::{synthetic_set, write_set};
 const RSS_LIMIT_KIB: i64 = 512 * 1024;
 
 /// Runs `gsid ARGS` and returns its exit code, stderr and peak RSS in KiB.
+// The child is reaped by `wait4`, which clippy does not see.
+#[allow(clippy::zombie_processes)]
 fn run(args: &[&str]) -> (Option<i32>, String, i64) {
     let dir = tempfile::tempdir().unwrap();
     let err_path = dir.path().join("stderr");
