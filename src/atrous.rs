@@ -70,14 +70,16 @@ pub fn pass_with(
             let y_begin = band * BAND_ROWS;
             let y_end = (y_begin + BAND_ROWS).min(h);
             let rows = y_begin.saturating_sub(reach)..(y_end + reach).min(h);
-            // Padded so every run is computed in whole groups of 8 (the extra results are dropped).
+            // Padded so every run is computed in whole groups of 8 (the extra results are dropped);
+            // taps that leave the image are skipped, so no run reaches further than its width.
+            let pad = reach.min(w) + 8;
             let band_features = features(rows.clone());
             let depth_weight = band_features.depth_weight();
-            let feats = band_features.planes(0..rows.len(), reach + 8);
+            let feats = band_features.planes(0..rows.len(), pad);
             // The planes' row 0 is image row `first`; `cols` keeps image rows.
             let first = rows.start;
             // Colour (3 lanes) and the keep weight (lane 3: 0 on masked pixels, else 1).
-            let cols = FeaturePlanes::build(w, rows, reach + 8, 4, |i, lane| {
+            let cols = FeaturePlanes::build(w, rows, pad, 4, |i, lane| {
                 if lane < 3 {
                     color.data()[3 * i + lane]
                 } else if mask.is_some_and(|m| m[i]) {

@@ -21,6 +21,11 @@ use crate::image::Image;
 
 pub use exr::prelude::Compression;
 
+/// Most pixels [`read`] accepts (2^28, a 16384² image): it allocates 4 bytes per pixel per channel
+/// asked for (12 for colour) whatever the file's sample types, so a header may not declare more
+/// than this, however small its samples.
+pub const MAX_PIXELS: u64 = 1 << 28;
+
 /// Reads the first non-deep layer of an EXR file at its full resolution as `channels` channels.
 pub fn read(path: &Path, channels: usize) -> Result<Image> {
     let bad = |e: exr::error::Error| Error::file(path, format!("not a readable EXR file ({e})"));
@@ -45,6 +50,16 @@ pub fn read(path: &Path, channels: usize) -> Result<Image> {
             ),
         ));
     }
+    let size = format!("{}x{}", header.layer_size.x(), header.layer_size.y());
+    let pixels = header.layer_size.x() as u64 * header.layer_size.y() as u64;
+    if pixels > MAX_PIXELS {
+        return Err(Error::file(
+            path,
+            format!(
+                "its header declares {size} pixels, more than the {MAX_PIXELS} this program reads"
+            ),
+        ));
+    }
     // A damaged header can declare gigapixels in a small file, and every block is allocated at
     // its declared size before its data is checked. No codec the crate reads packs more than about
     // 1000 bytes of samples into one byte (deflate's limit), so a larger claim is an error.
@@ -55,9 +70,7 @@ pub fn read(path: &Path, channels: usize) -> Result<Image> {
         return Err(Error::file(
             path,
             format!(
-                "not a readable EXR file (its header declares {}x{} pixels, more than a {file_len}-byte file can hold)",
-                header.layer_size.x(),
-                header.layer_size.y()
+                "not a readable EXR file (its header declares {size} pixels, more than a {file_len}-byte file can hold)"
             ),
         ));
     }

@@ -54,6 +54,11 @@ impl Default for GsidParams {
     }
 }
 
+/// Most steps the walks of one start pixel may take together (walks × max_steps). Walks that
+/// never drop below `p_min` (a tiny σ over similar pixels) take every step, so this bounds the
+/// time a pixel costs, whatever the settings.
+const MAX_WALK_STEPS: u64 = 4_000_000;
+
 impl GsidParams {
     /// Checks every key against its allowed range; the error names the key.
     pub fn validate(&self) -> Result<()> {
@@ -72,6 +77,17 @@ impl GsidParams {
         }
         if !(1..=100_000).contains(&self.max_steps) {
             return Err(Error::range("max_steps", self.max_steps, "1 to 100000"));
+        }
+        let most = MAX_WALK_STEPS / self.walks as u64;
+        if self.max_steps as u64 > most {
+            return Err(Error::range(
+                "max_steps",
+                self.max_steps,
+                &format!(
+                    "1 to {most} with walks = {} (walks × max_steps at most {MAX_WALK_STEPS})",
+                    self.walks
+                ),
+            ));
         }
         if self.window > 1024 {
             return Err(Error::range("window", self.window, "0 (unbounded) to 1024"));

@@ -59,6 +59,10 @@ impl Default for PyramidParams {
 /// Most levels accepted; a 2^12 reduction leaves nothing of any real render.
 const MAX_LEVELS: u32 = 12;
 
+/// Largest `clamp_radius`: the clamp costs (2r+1)² reads a pixel, and a neighbourhood wider than
+/// a few pixels no longer guards against halos.
+const MAX_CLAMP_RADIUS: u32 = 8;
+
 impl PyramidParams {
     pub fn validate(&self) -> Result<()> {
         if !(1..=MAX_LEVELS).contains(&self.levels) {
@@ -72,6 +76,13 @@ impl PyramidParams {
             if !(0.0..=4.0).contains(b) {
                 return Err(Error::range(&format!("blend[{i}]"), b, "0 to 4"));
             }
+        }
+        if self.clamp_radius > MAX_CLAMP_RADIUS {
+            return Err(Error::range(
+                "clamp_radius",
+                self.clamp_radius,
+                &format!("0 to {MAX_CLAMP_RADIUS}"),
+            ));
         }
         Ok(())
     }

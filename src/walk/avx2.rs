@@ -10,22 +10,23 @@
 //!
 //! A step is one chain of dependent operations (where a walk stands decides what it loads
 //! next), so the walk loop does only what the next step needs; the weights and colour sums run
-//! after it, in [`weigh`], from a record of every step, where nothing waits on the walks.
+//! after it, in `super::avx2_weigh`, from a record of every step (handed over in bounded
+//! chunks), where nothing waits on the walks.
 //!
 //! Every operation mirrors the scalar spec (the same IEEE operations in the same order, the
 //! random numbers from the same integer arithmetic), so the results are bit-identical.
 
 use std::arch::x86_64::*;
 
+use super::avx2_weigh::{Record, Weigh, FLUSH_RECORDS};
 use super::rng::{walk_key, GAMMA};
 use super::step::{choose_log, Accum, LINEAR_MIN};
 use super::tables::Near;
 use super::{lane_offsets, WalkInput, WalkParams};
-use crate::fastmath::avx2::exp_neg8;
 use crate::fastmath::{LN2_HI, LN2_LO, LN_POLY};
 
 /// Walks in lockstep: one per f32 lane.
-const SLOTS: usize = 8;
+pub(super) const SLOTS: usize = 8;
 
 /// Walks per batch to aim for. Lanes idle only while a batch's last walks finish, so more
 /// walks per batch idle less; the batch's window grids must still fit in L1.
@@ -186,7 +187,7 @@ fn pick8(rows: &[__m256; SLOTS], k: __m256i) -> __m256 {
 /// The 8-lane mask vector of the low 8 bits of `bits`.
 #[inline]
 #[target_feature(enable = "avx2")]
-fn lanes(bits: i32) -> __m256i {
+pub(super) fn lanes(bits: i32) -> __m256i {
     let sel = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
     _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(bits), sel), sel)
 }
@@ -211,7 +212,7 @@ fn offsets8(o: [isize; 8]) -> __m256i {
 /// A 32-bit lane mask widened to two f64 masks (lanes 0–3, lanes 4–7).
 #[inline]
 #[target_feature(enable = "avx2")]
-fn widen(m: __m256i) -> [__m256d; 2] {
+pub(super) fn widen(m: __m256i) -> [__m256d; 2] {
     [
         _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm256_castsi256_si128(m))),
         _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm256_extracti128_si256::<1>(m))),
@@ -221,18 +222,11 @@ fn widen(m: __m256i) -> [__m256d; 2] {
 /// f32 lanes 0–3 and 4–7 as f64.
 #[inline]
 #[target_feature(enable = "avx2")]
-fn to_f64(x: __m256) -> [__m256d; 2] {
+pub(super) fn to_f64(x: __m256) -> [__m256d; 2] {
     [
         _mm256_cvtps_pd(_mm256_castps256_ps128(x)),
         _mm256_cvtps_pd(_mm256_extractf128_ps::<1>(x)),
     ]
-}
-
-/// acc + x where `m` is set, acc elsewhere.
-#[inline]
-#[target_feature(enable = "avx2")]
-fn add_where(acc: __m256d, x: __m256d, m: __m256d) -> __m256d {
-    _mm256_blendv_pd(acc, _mm256_add_pd(acc, x), m)
 }
 
 /// `super::step::pick` on 8 walks: per lane, the first neighbour of weight > 0 whose cumulative
@@ -382,100 +376,15 @@ struct Lanes {
     ctr: [u64; SLOTS],
 }
 
-/// What one step of the walk loop leaves for [`weigh`]: per lane the pixel a walk stands on,
-/// its log-probability and step count, and which walks moved and which ended.
-#[derive(Clone, Copy)]
-struct Record {
-    pixel: [i32; SLOTS],
-    log_p: [f64; SLOTS],
-    step: [i32; SLOTS],
-    going: i32,
-    ended: i32,
-}
-
 /// Per-batch scratch of [`walk_batch`], reused from batch to batch.
 #[derive(Default)]
 pub(super) struct Walks {
     /// Each walk's sums, merged per start pixel in walk order at the end.
     parts: Vec<Accum>,
+    /// The steps not yet weighed: at most [`FLUSH_RECORDS`].
     records: Vec<Record>,
-    /// The jobs of the walks that ended, in the order they ended.
+    /// The jobs of the walks that ended in `records`, in the order they ended.
     ends: Vec<usize>,
-}
-
-/// The second loop of [`walk_batch`]: each step's weight exp(L_k / k) (in f32 as the spec
-/// rounds it) and the colour sums, lane by lane in the order the walk loop took the steps,
-/// so every sum is the spec's, bit for bit. Nothing here feeds back into the walks, so the
-/// steps overlap each other.
-#[target_feature(enable = "avx2")]
-unsafe fn weigh(records: &[Record], ends: &[usize], color: *const f32, parts: &mut [Accum]) {
-    let mut sum = [[_mm256_setzero_pd(); 2]; 3];
-    let mut weight = [_mm256_setzero_pd(); 2];
-    let mut ends = ends.iter();
-    for rec in records {
-        let going_v = lanes(rec.going);
-        let moved = widen(going_v);
-        let step = _mm256_loadu_si256(rec.step.as_ptr().cast());
-        let log_p = [
-            _mm256_loadu_pd(rec.log_p.as_ptr()),
-            _mm256_loadu_pd(rec.log_p[4..].as_ptr()),
-        ];
-        let step_pd = [
-            _mm256_cvtepi32_pd(_mm256_castsi256_si128(step)),
-            _mm256_cvtepi32_pd(_mm256_extracti128_si256::<1>(step)),
-        ];
-        let ratio = _mm256_set_m128(
-            _mm256_cvtpd_ps(_mm256_div_pd(log_p[1], step_pd[1])),
-            _mm256_cvtpd_ps(_mm256_div_pd(log_p[0], step_pd[0])),
-        );
-        // Lanes that did not move may hold 0/0: they get exp(0), masked below.
-        let ratio = _mm256_and_ps(ratio, _mm256_castsi256_ps(going_v));
-        let wgt = to_f64(exp_neg8(ratio));
-        let wgt = [
-            _mm256_and_pd(wgt[0], moved[0]),
-            _mm256_and_pd(wgt[1], moved[1]),
-        ];
-        let pixel = _mm256_loadu_si256(rec.pixel.as_ptr().cast());
-        let at3 = _mm256_mullo_epi32(pixel, _mm256_set1_epi32(3));
-        for (ch, acc) in sum.iter_mut().enumerate() {
-            let col = to_f64(_mm256_i32gather_ps::<4>(
-                color.add(ch),
-                _mm256_blendv_epi8(_mm256_setzero_si256(), at3, going_v),
-            ));
-            for h in 0..2 {
-                acc[h] = add_where(acc[h], _mm256_mul_pd(wgt[h], col[h]), moved[h]);
-            }
-        }
-        for h in 0..2 {
-            weight[h] = add_where(weight[h], wgt[h], moved[h]);
-        }
-        if rec.ended != 0 {
-            let mut sums = [[0.0f64; SLOTS]; 4];
-            for h in 0..2 {
-                _mm256_storeu_pd(sums[3][4 * h..].as_mut_ptr(), weight[h]);
-                for ch in 0..3 {
-                    _mm256_storeu_pd(sums[ch][4 * h..].as_mut_ptr(), sum[ch][h]);
-                }
-            }
-            let mut bits = rec.ended;
-            while bits != 0 {
-                let s = bits.trailing_zeros() as usize;
-                bits &= bits - 1;
-                let job = *ends.next().expect("one job per ended walk");
-                parts[job] = Accum {
-                    sum: [sums[0][s], sums[1][s], sums[2][s]],
-                    weight: sums[3][s],
-                };
-            }
-            let reset = widen(lanes(rec.ended));
-            for h in 0..2 {
-                weight[h] = _mm256_andnot_pd(reset[h], weight[h]);
-                for ch in 0..3 {
-                    sum[ch][h] = _mm256_andnot_pd(reset[h], sum[ch][h]);
-                }
-            }
-        }
-    }
 }
 
 /// `super::scalar::walk_windowed` for every start pixel of `win`, bit for bit, their walks sharing the
@@ -564,6 +473,7 @@ pub(super) unsafe fn walk_batch(
         _mm256_loadu_si256(st.ctr[4..].as_ptr().cast()),
     ];
     let mut log_p = [_mm256_setzero_pd(); 2];
+    let mut weigh = Weigh::new();
     while live != 0 {
         let u = uniform8(ctr);
         // Each walk's 8 neighbour weights, one register per walk, then one per neighbour.
@@ -686,8 +596,15 @@ pub(super) unsafe fn walk_batch(
                 }
             }
         }
+        // Weighs what has accumulated, so the records never outgrow a fixed bound; `weigh`
+        // carries the sums of the walks in flight, and `ends` holds exactly the ended walks'.
+        if records.len() >= FLUSH_RECORDS {
+            weigh.run(records, ends, color, parts);
+            records.clear();
+            ends.clear();
+        }
     }
-    weigh(records, ends, color, parts);
+    weigh.run(records, ends, color, parts);
     for (b, &(_, i0)) in win.starts.iter().enumerate() {
         let mut acc = Accum::new(input, i0, params);
         for part in &parts[b * walks..(b + 1) * walks] {

@@ -19,6 +19,10 @@ use crate::simd::Kernel;
 /// in cache and never exist for the whole image at once.
 pub(super) const BAND_ROWS: usize = 16;
 
+/// Window grid cells a batch of start pixels may take: large windows walk fewer start pixels per
+/// batch (each walk's sums are its own, so the batch size does not change the result).
+const BATCH_CELLS: usize = 1 << 18;
+
 thread_local! {
     /// Each worker thread's scratch space. Thread-local rather than rayon's `for_each_init`, which
     /// makes a fresh one per work split: the band tables would be allocated (and page-faulted in)
@@ -149,12 +153,12 @@ impl<'a> Band<'a> {
             #[cfg(not(target_arch = "x86_64"))]
             let vector = false;
             // Start pixels whose walks share the AVX2 kernel's lanes.
+            let cells = radius.map_or(0, |r| (2 * r + 3) * (2 * r + 3));
             let batch = match vector {
                 #[cfg(target_arch = "x86_64")]
-                true => avx2::batch(params.walks),
+                true => avx2::batch(params.walks).min((BATCH_CELLS / cells).max(1)),
                 _ => 1,
             };
-            let cells = radius.map_or(0, |r| (2 * r + 3) * (2 * r + 3));
             scratch.grid.resize(batch * cells, 0.0);
             scratch.egrid.resize(batch * cells, 0.0);
             scratch.accs.resize(batch, Accum::default());

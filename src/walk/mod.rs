@@ -23,6 +23,8 @@
 
 #[cfg(target_arch = "x86_64")]
 mod avx2;
+#[cfg(target_arch = "x86_64")]
+mod avx2_weigh;
 mod band;
 mod reference;
 pub mod rng;
@@ -178,6 +180,18 @@ impl<'a> WalkJob<'a> {
 /// Denoises `job.color`: every pixel becomes the weighted average of the pixels its walks reach.
 /// Fails only when features cannot be built.
 pub fn run(job: &WalkJob) -> Result<(Image, WalkStats)> {
+    // A radius of max(w, h) already holds every pixel of the image from any start pixel, so a
+    // larger one gives the same walks; clipped here, no grid or table scales with it beyond the
+    // image (strips would otherwise clip to a strip, not the image).
+    let (w, h) = job.color.dims();
+    let clipped = WalkParams {
+        window: job.params.window.map(|r| r.min(w.max(h) as u32)),
+        ..job.params.clone()
+    };
+    let job = &WalkJob {
+        params: &clipped,
+        ..*job
+    };
     let whole;
     let features = match (job.features, job.engine) {
         (FeatureSource::Whole(features), _) => features,

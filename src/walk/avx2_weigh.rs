@@ -1,0 +1,136 @@
+//! The second loop of `super::avx2::walk_batch`: each step's weight exp(L_k / k) (in f32 as the
+//! spec rounds it) and the colour sums, lane by lane in the order the walk loop took the steps,
+//! so every sum is the spec's, bit for bit. Nothing here feeds back into the walks, so the steps
+//! overlap each other.
+//!
+//! The walk loop hands over its records in chunks of at most [`FLUSH_RECORDS`], so their memory
+//! does not grow with walks × max_steps; the per-lane running sums of the walks still in flight
+//! are kept in [`Weigh`] from one chunk to the next, so the sums are formed as in one pass.
+
+use std::arch::x86_64::*;
+
+use super::avx2::{lanes, to_f64, widen, SLOTS};
+use super::step::Accum;
+use crate::fastmath::avx2::exp_neg8;
+
+/// Records the walk loop keeps before it weighs them: a bound on its memory, large enough that
+/// the weighing still runs long stretches with nothing waiting on the walks.
+pub(super) const FLUSH_RECORDS: usize = 4096;
+
+/// What one step of the walk loop leaves for [`Weigh::run`]: per lane the pixel a walk stands
+/// on, its log-probability and step count, and which walks moved and which ended.
+#[derive(Clone, Copy)]
+pub(super) struct Record {
+    pub(super) pixel: [i32; SLOTS],
+    pub(super) log_p: [f64; SLOTS],
+    pub(super) step: [i32; SLOTS],
+    pub(super) going: i32,
+    pub(super) ended: i32,
+}
+
+/// Per-lane colour and weight sums of the walks in flight, carried across chunks of records.
+pub(super) struct Weigh {
+    sum: [[__m256d; 2]; 3],
+    weight: [__m256d; 2],
+}
+
+/// acc + x where `m` is set, acc elsewhere.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn add_where(acc: __m256d, x: __m256d, m: __m256d) -> __m256d {
+    _mm256_blendv_pd(acc, _mm256_add_pd(acc, x), m)
+}
+
+impl Weigh {
+    /// Sums of no steps, for a batch's first chunk.
+    #[target_feature(enable = "avx2")]
+    pub(super) fn new() -> Self {
+        Weigh {
+            sum: [[_mm256_setzero_pd(); 2]; 3],
+            weight: [_mm256_setzero_pd(); 2],
+        }
+    }
+
+    /// Adds the steps of `records` to the running sums; each walk that ends in them takes the
+    /// next job of `ends` (the jobs of exactly those walks, in the order they ended) and leaves
+    /// its sums in `parts[job]`.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2, and every pixel of a moving lane must index `color`'s pixels.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn run(
+        &mut self,
+        records: &[Record],
+        ends: &[usize],
+        color: *const f32,
+        parts: &mut [Accum],
+    ) {
+        let Weigh { sum, weight } = self;
+        let mut ends = ends.iter();
+        for rec in records {
+            let going_v = lanes(rec.going);
+            let moved = widen(going_v);
+            let step = _mm256_loadu_si256(rec.step.as_ptr().cast());
+            let log_p = [
+                _mm256_loadu_pd(rec.log_p.as_ptr()),
+                _mm256_loadu_pd(rec.log_p[4..].as_ptr()),
+            ];
+            let step_pd = [
+                _mm256_cvtepi32_pd(_mm256_castsi256_si128(step)),
+                _mm256_cvtepi32_pd(_mm256_extracti128_si256::<1>(step)),
+            ];
+            let ratio = _mm256_set_m128(
+                _mm256_cvtpd_ps(_mm256_div_pd(log_p[1], step_pd[1])),
+                _mm256_cvtpd_ps(_mm256_div_pd(log_p[0], step_pd[0])),
+            );
+            // Lanes that did not move may hold 0/0: they get exp(0), masked below.
+            let ratio = _mm256_and_ps(ratio, _mm256_castsi256_ps(going_v));
+            let wgt = to_f64(exp_neg8(ratio));
+            let wgt = [
+                _mm256_and_pd(wgt[0], moved[0]),
+                _mm256_and_pd(wgt[1], moved[1]),
+            ];
+            let pixel = _mm256_loadu_si256(rec.pixel.as_ptr().cast());
+            let at3 = _mm256_mullo_epi32(pixel, _mm256_set1_epi32(3));
+            for (ch, acc) in sum.iter_mut().enumerate() {
+                let col = to_f64(_mm256_i32gather_ps::<4>(
+                    color.add(ch),
+                    _mm256_blendv_epi8(_mm256_setzero_si256(), at3, going_v),
+                ));
+                for h in 0..2 {
+                    acc[h] = add_where(acc[h], _mm256_mul_pd(wgt[h], col[h]), moved[h]);
+                }
+            }
+            for h in 0..2 {
+                weight[h] = add_where(weight[h], wgt[h], moved[h]);
+            }
+            if rec.ended != 0 {
+                let mut sums = [[0.0f64; SLOTS]; 4];
+                for h in 0..2 {
+                    _mm256_storeu_pd(sums[3][4 * h..].as_mut_ptr(), weight[h]);
+                    for ch in 0..3 {
+                        _mm256_storeu_pd(sums[ch][4 * h..].as_mut_ptr(), sum[ch][h]);
+                    }
+                }
+                let mut bits = rec.ended;
+                while bits != 0 {
+                    let s = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    let job = *ends.next().expect("one job per ended walk");
+                    parts[job] = Accum {
+                        sum: [sums[0][s], sums[1][s], sums[2][s]],
+                        weight: sums[3][s],
+                    };
+                }
+                let reset = widen(lanes(rec.ended));
+                for h in 0..2 {
+                    weight[h] = _mm256_andnot_pd(reset[h], weight[h]);
+                    for ch in 0..3 {
+                        sum[ch][h] = _mm256_andnot_pd(reset[h], sum[ch][h]);
+                    }
+                }
+            }
+        }
+        debug_assert!(ends.next().is_none(), "a job for a walk that did not end");
+    }
+}

@@ -1,0 +1,202 @@
+//! Every allowed maximum of a setting runs in bounded memory (or is refused up front): the binary
+//! runs on tiny images with each key at the top of its range, and the child's peak RSS is read
+//! from `wait4`, which reports it for that child alone (tests run in parallel threads).
+
+mod common;
+
+use std::path::Path;
+use std::process::{Command, Stdio};
+
+use common::{synthetic_set, write_set};
+
+/// Peak RSS any setting may reach on a tiny image.
+const RSS_LIMIT_KIB: i64 = 512 * 1024;
+
+/// Runs `gsid ARGS` and returns its exit code, stderr and peak RSS in KiB.
+// The child is reaped by `wait4`, which clippy does not see.
+#[allow(clippy::zombie_processes)]
+fn run(args: &[&str]) -> (Option<i32>, String, i64) {
+    let dir = tempfile::tempdir().unwrap();
+    let err_path = dir.path().join("stderr");
+    let child = Command::new(env!("CARGO_BIN_EXE_gsid"))
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&err_path).unwrap())
+        .spawn()
+        .expect("run gsid");
+    let mut status = 0;
+    // SAFETY: an all-zero rusage is a valid value; wait4 fills it for this child.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: the pid is our own unreaped child; `status` and `usage` outlive the call.
+    let pid = unsafe { libc::wait4(child.id() as i32, &mut status, 0, &mut usage) };
+    assert_eq!(pid, child.id() as i32, "wait4 failed");
+    let code = libc::WIFEXITED(status).then(|| libc::WEXITSTATUS(status));
+    let err = std::fs::read_to_string(&err_path).unwrap();
+    (code, err, usage.ru_maxrss)
+}
+
+/// Runs `gsid denoise -q` of a synthetic `w`×`h` set with `extra` arguments; returns what [`run`]
+/// does and whether the output was written.
+fn denoise(w: usize, h: usize, extra: &[&str]) -> (Option<i32>, String, i64, bool) {
+    let dir = tempfile::tempdir().unwrap();
+    let set = dir.path().join("set");
+    write_set(&set, &synthetic_set(w, h));
+    let out = dir.path().join("out.exr");
+    let mut args = vec![
+        "denoise",
+        set.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "-q",
+    ];
+    args.extend_from_slice(extra);
+    let (code, err, rss) = run(&args);
+    (code, err, rss, Path::new(&out).exists())
+}
+
+/// `gsid denoise` of a `w`×`h` set with `extra` arguments succeeds with a peak RSS under
+/// `limit_kib`.
+fn denoise_within(w: usize, h: usize, extra: &[&str], limit_kib: i64) {
+    let (code, err, rss, written) = denoise(w, h, extra);
+    assert_eq!(code, Some(0), "{w}x{h} {extra:?} failed: {err}");
+    assert!(written);
+    assert!(
+        rss < limit_kib,
+        "{w}x{h} {extra:?} peaked at {rss} KiB (limit {limit_kib} KiB)"
+    );
+}
+
+/// `gsid denoise` of a 3×2 set with `extra` arguments must exit 2 naming `key`.
+fn refused(extra: &[&str], key: &str) {
+    let (code, err, _, _) = denoise(3, 2, extra);
+    assert_eq!(code, Some(2), "{extra:?} was not refused: {err}");
+    assert!(err.contains(key), "error does not name `{key}`: {err}");
+}
+
+#[test]
+fn walks_times_max_steps_beyond_the_cap_is_refused() {
+    refused(
+        &[
+            "--pipeline",
+            "gsid",
+            "--set",
+            "gsid.walks=100000",
+            "--set",
+            "gsid.max_steps=100000",
+            "--set",
+            "gsid.sigma=1e-3",
+        ],
+        "max_steps",
+    );
+}
+
+/// On a 2×1 image every step has probability 1, so every walk takes all its steps: the step
+/// records would be walks × max_steps a batch if they were not weighed in bounded chunks.
+#[test]
+fn longest_walks_run_in_memory_independent_of_their_length() {
+    for (w, h) in [(2, 1), (2, 2)] {
+        let walks = ["--pipeline", "gsid", "--set", "gsid.sigma=1e-3"];
+        for (n, steps) in [("40", "100000"), ("100000", "40")] {
+            let walks_n = format!("gsid.walks={n}");
+            let steps_n = format!("gsid.max_steps={steps}");
+            let args = [&walks[..], &["--set", &walks_n, "--set", &steps_n]].concat();
+            // Tighter than the general limit: these runs must not grow with walks × max_steps.
+            denoise_within(w, h, &args, 64 * 1024);
+        }
+    }
+}
+
+#[test]
+fn widest_window_is_clipped_to_the_image() {
+    for (w, h) in [(3, 2), (1, 1)] {
+        let args = ["--pipeline", "gsid", "--set", "gsid.window=1024"];
+        denoise_within(w, h, &args, RSS_LIMIT_KIB);
+    }
+}
+
+#[test]
+fn most_atrous_iterations_run_in_bounded_memory() {
+    let args = ["--pipeline", "full", "--set", "atrous.iterations=12"];
+    denoise_within(3, 2, &args, RSS_LIMIT_KIB);
+}
+
+#[test]
+fn largest_pyramid_settings_run_in_bounded_memory() {
+    let args = [
+        "--pipeline",
+        "pyramid",
+        "--set",
+        "pyramid.levels=12",
+        "--set",
+        "pyramid.clamp_radius=8",
+    ];
+    denoise_within(3, 2, &args, RSS_LIMIT_KIB);
+    denoise_within(1, 1, &args, RSS_LIMIT_KIB);
+    refused(
+        &["--pipeline", "pyramid", "--set", "pyramid.clamp_radius=9"],
+        "clamp_radius",
+    );
+}
+
+#[test]
+fn most_threads_start_quickly_in_bounded_memory() {
+    let start = std::time::Instant::now();
+    denoise_within(3, 2, &["--threads", "1024"], RSS_LIMIT_KIB);
+    let took = start.elapsed();
+    assert!(took.as_secs() < 10, "1024 threads took {took:?}");
+}
+
+/// A header that declares more pixels than the reader allocates for is refused before any
+/// allocation, naming the file and the cap (2^28 pixels), even when the file is long enough to
+/// hold them.
+#[test]
+fn exr_declaring_too_many_pixels_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let set = dir.path().join("set");
+    write_set(&set, &synthetic_set(1, 1));
+    let color = set.join("color.exr");
+    let mut bytes = std::fs::read(&color).unwrap();
+    // Where the value of attribute `tag` (name, type, then a 4-byte size) starts.
+    let value = |bytes: &[u8], tag: &[u8]| {
+        bytes
+            .windows(tag.len())
+            .position(|w| w == tag)
+            .unwrap_or_else(|| panic!("no {} attribute", String::from_utf8_lossy(tag)))
+            + tag.len()
+            + 4
+    };
+    // xMax and yMax: 17000² pixels, just above the cap; the chunk count to match, and padding
+    // that makes the file large enough to hold that many compressed samples.
+    let side: i32 = 17_000;
+    let at = value(&bytes, b"dataWindow\0box2i\0");
+    for field in [8, 12] {
+        bytes[at + field..at + field + 4].copy_from_slice(&(side - 1).to_le_bytes());
+    }
+    let lines_per_chunk = match bytes[value(&bytes, b"compression\0compression\0")] {
+        0..=2 => 1u32,
+        3 | 5 => 16,
+        _ => 32,
+    };
+    let at = value(&bytes, b"chunkCount\0int\0");
+    let chunks = (side as u32).div_ceil(lines_per_chunk) as i32;
+    bytes[at..at + 4].copy_from_slice(&chunks.to_le_bytes());
+    bytes.resize(bytes.len() + 1_000_000, 0);
+    std::fs::write(&color, bytes).unwrap();
+    let out = dir.path().join("out.exr");
+    let (code, err, rss) = run(&[
+        "denoise",
+        set.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(code, Some(2), "not refused: {err}");
+    assert!(
+        err.contains("268435456"),
+        "error does not give the cap: {err}"
+    );
+    assert!(
+        err.contains("color.exr"),
+        "error does not name the file: {err}"
+    );
+    assert!(rss < RSS_LIMIT_KIB, "peaked at {rss} KiB");
+}
