@@ -116,8 +116,20 @@ fn widest_window_is_clipped_to_the_image() {
 
 #[test]
 fn most_atrous_iterations_run_in_bounded_memory() {
-    let args = ["--pipeline", "full", "--set", "atrous.iterations=12"];
+    let args = ["--pipeline", "full", "--set", "atrous.iterations=5"];
     denoise_within(3, 2, &args, RSS_LIMIT_KIB);
+    let set = tempfile::tempdir().unwrap();
+    write_set(set.path(), &synthetic_set(3, 2));
+    let out = set.path().join("out.exr");
+    let run = common::gsid(&[
+        "denoise",
+        set.path().to_str().unwrap(),
+        "--set",
+        "atrous.iterations=6",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    common::assert_bad_input(&run, "atrous.iterations");
 }
 
 #[test]

@@ -50,8 +50,10 @@ impl Default for AtrousParams {
 /// Added to the albedo before dividing by it: black surfaces keep their (small) colour.
 const DEMODULATION_EPS: f32 = 0.01;
 
-/// Most passes accepted: pass 12 would space taps 4096 pixels apart.
-pub const MAX_ITERATIONS: u32 = 12;
+/// Most passes accepted. Pass k spaces its taps 2^(k−1) pixels apart and each band's feature planes
+/// hold the rows within reach, so a cap on passes bounds a band's memory (5: 32 rows either side);
+/// the presets use 2.
+pub const MAX_ITERATIONS: u32 = 5;
 
 impl AtrousParams {
     /// Checks every key against its allowed range; the error names the key.
