@@ -174,26 +174,11 @@ pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
             continue;
         };
         let img = img?;
-        if img.dims() != (w, h) {
-            return Err(Error::file(
-                &path,
-                format!(
-                    "is {}x{} but {} is {w}x{h}; all buffers of a render set must have one size",
-                    img.width(),
-                    img.height(),
-                    color_path.display()
-                ),
-            ));
-        }
+        check_size(&img, &path, (w, h), &color_path)?;
         set = set.with(feature, img)?;
         files.push((feature.name().to_string(), path));
     }
-    if !missing.is_empty() {
-        notes.push(format!(
-            "missing buffers (their features are off): {}",
-            missing.join(", ")
-        ));
-    }
+    note_missing(&mut notes, &missing);
     let reference = find_reference(dir);
     Ok(LoadedSet {
         dir: dir.to_path_buf(),
@@ -243,12 +228,7 @@ pub fn load_input(path: &Path, maps: &[(String, String)]) -> Result<LoadedSet> {
         notes.push(format!("not used: {}", recorded.join(", ")));
     }
     let missing: Vec<&str> = set.features.missing().iter().map(|f| f.name()).collect();
-    if !missing.is_empty() {
-        notes.push(format!(
-            "missing buffers (their features are off): {}",
-            missing.join(", ")
-        ));
-    }
+    note_missing(&mut notes, &missing);
     let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let reference = Some(dir.join("reference.exr")).filter(|r| r.is_file() && r != path);
     Ok(LoadedSet {
@@ -305,29 +285,14 @@ pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
             continue;
         };
         let (img, file, shown) = read(feature.name(), spec)?;
-        if img.dims() != (w, h) {
-            return Err(Error::file(
-                &file,
-                format!(
-                    "is {}x{} but {} is {w}x{h}; all buffers of a render set must have one size",
-                    img.width(),
-                    img.height(),
-                    color_path.display()
-                ),
-            ));
-        }
+        check_size(&img, &file, (w, h), &color_path)?;
         set = set.with(feature, img)?;
         mapping.push(format!("{} ← {shown}", feature.name()));
         files.push((feature.name().to_string(), file));
     }
     let mut notes = vec![mapping.join(", ")];
     let missing: Vec<&str> = set.features.missing().iter().map(|f| f.name()).collect();
-    if !missing.is_empty() {
-        notes.push(format!(
-            "missing buffers (their features are off): {}",
-            missing.join(", ")
-        ));
-    }
+    note_missing(&mut notes, &missing);
     let dir = color_path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let reference = find_reference(&dir);
     Ok(LoadedSet {
@@ -338,6 +303,31 @@ pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
         notes,
         layered: false,
     })
+}
+
+/// Every buffer of a render set must have the colour's size.
+fn check_size(img: &Image, path: &Path, (w, h): (usize, usize), color_path: &Path) -> Result<()> {
+    if img.dims() == (w, h) {
+        return Ok(());
+    }
+    Err(Error::file(
+        path,
+        format!(
+            "is {}x{} but {} is {w}x{h}; all buffers of a render set must have one size",
+            img.width(),
+            img.height(),
+            color_path.display()
+        ),
+    ))
+}
+
+fn note_missing(notes: &mut Vec<String>, missing: &[&str]) {
+    if !missing.is_empty() {
+        notes.push(format!(
+            "missing buffers (their features are off): {}",
+            missing.join(", ")
+        ));
+    }
 }
 
 /// The converged reference of a render set: `reference.exr` in the folder or one level up.
