@@ -107,7 +107,10 @@ fn cycles_file_denoises_as_its_passes_split_into_a_folder() {
 }
 
 /// Writes one scan-line layer of f32 channels, `(name, value at pixel i)`.
-fn write_layout(path: &Path, w: usize, h: usize, channels: &[(&str, fn(usize) -> f32)]) {
+/// A channel's name and its value at each pixel index.
+type Channel<'a> = (&'a str, fn(usize) -> f32);
+
+fn write_layout(path: &Path, w: usize, h: usize, channels: &[Channel]) {
     let list: SmallVec<[AnyChannel<FlatSamples>; 4]> = channels
         .iter()
         .map(|(name, f)| AnyChannel::new(*name, FlatSamples::F32((0..w * h).map(f).collect())))

@@ -309,9 +309,12 @@ pub fn write(
     })
 }
 
+/// Named channels of one size: width, height, and `(name, samples)` per channel.
+pub type Channels = (usize, usize, Vec<(String, Vec<f32>)>);
+
 /// Every channel of every non-deep part of an EXR file, as `(name, samples)`: a part's name (if it
 /// has one) is prefixed to its channels' names, so multi-part and multilayer files name alike.
-pub fn read_all_channels(path: &Path) -> Result<(usize, usize, Vec<(String, Vec<f32>)>)> {
+pub fn read_all_channels(path: &Path) -> Result<Channels> {
     use exr::prelude::{FlatSamples, ReadChannels, ReadLayers};
     let image = exr::prelude::read()
         .no_deep_data()
