@@ -54,7 +54,7 @@ pub enum Command {
 
 #[derive(clap::Args, Debug)]
 pub struct SweepArgs {
-    /// Render set folder.
+    /// Render set folder, or one multilayer EXR file.
     pub dir: PathBuf,
     #[command(flatten)]
     pub run: RunOptions,
@@ -75,7 +75,7 @@ pub struct SweepArgs {
 
 #[derive(clap::Args, Debug)]
 pub struct AblateArgs {
-    /// Render set folder.
+    /// Render set folder, or one multilayer EXR file.
     pub dir: PathBuf,
     #[command(flatten)]
     pub run: RunOptions,
@@ -122,8 +122,11 @@ impl RunOptions {
 
 #[derive(clap::Args, Debug)]
 pub struct DenoiseArgs {
-    /// Render set folder.
-    pub dir: PathBuf,
+    /// Render set folder, or one multilayer EXR file (omit with --color).
+    #[arg(required_unless_present = "color")]
+    pub dir: Option<PathBuf>,
+    #[command(flatten)]
+    pub inputs: NamedInputs,
     #[command(flatten)]
     pub run: RunOptions,
     /// Output EXR path (written atomically; never an input file).
@@ -135,6 +138,64 @@ pub struct DenoiseArgs {
     /// Print each stage's time (and each pyramid level's) after the run.
     #[arg(long)]
     pub timings: bool,
+}
+
+/// Buffers named one by one instead of a folder; each a file or `file.exr:Layer`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct NamedInputs {
+    /// Colour (noisy beauty) image.
+    #[arg(long, alias = "hdr", conflicts_with = "dir")]
+    pub color: Option<PathBuf>,
+    #[arg(long, alias = "alb", requires = "color")]
+    pub albedo: Option<PathBuf>,
+    #[arg(long, alias = "nrm", requires = "color")]
+    pub normal: Option<PathBuf>,
+    #[arg(long, requires = "color")]
+    pub depth: Option<PathBuf>,
+    #[arg(long, requires = "color")]
+    pub material: Option<PathBuf>,
+    #[arg(long, requires = "color")]
+    pub shadow: Option<PathBuf>,
+    /// Which layer of a multilayer input is a buffer, e.g. `--map albedo=ViewLayer.DiffCol` (repeatable).
+    #[arg(long = "map", value_name = "BUFFER=LAYER")]
+    pub maps: Vec<String>,
+}
+
+impl NamedInputs {
+    /// Loads the folder or multilayer file `dir`, or the buffers named one by one.
+    pub fn load(&self, dir: Option<&Path>) -> Result<io::LoadedSet> {
+        let mut maps = Vec::new();
+        for m in &self.maps {
+            let (buffer, layer) = m
+                .split_once('=')
+                .filter(|(b, _)| io::passes::PASSES.iter().any(|(n, _)| n == b))
+                .ok_or_else(|| {
+                    Error::config(
+                        "--map",
+                        format!("`{m}` is not BUFFER=LAYER with a known buffer"),
+                    )
+                })?;
+            maps.push((buffer.to_string(), layer.to_string()));
+        }
+        if let Some(dir) = dir {
+            return io::load_input(dir, &maps);
+        }
+        if !maps.is_empty() {
+            return Err(Error::config("--map", "applies to a multilayer file input"));
+        }
+        let named: Vec<(&'static str, PathBuf)> = [
+            ("color", &self.color),
+            ("albedo", &self.albedo),
+            ("normal", &self.normal),
+            ("depth", &self.depth),
+            ("material", &self.material),
+            ("shadow", &self.shadow),
+        ]
+        .into_iter()
+        .filter_map(|(b, p)| p.clone().map(|p| (b, p)))
+        .collect();
+        io::load_named(&named)
+    }
 }
 
 #[derive(clap::Args, Debug)]
@@ -270,7 +331,7 @@ fn denoise_in_pool(args: &DenoiseArgs, ctx: &RunContext) -> Result<()> {
             .ok_or_else(|| Error::config("--save-buffer", format!("`{s}` is not NAME=FILE.exr")))?;
         saves.push((name.to_string(), PathBuf::from(path)));
     }
-    let set = io::load_render_set(&args.dir)?;
+    let set = args.inputs.load(args.dir.as_deref())?;
     let outputs: Vec<&Path> = std::iter::once(args.output.as_path())
         .chain(saves.iter().map(|(_, p)| p.as_path()))
         .collect();
@@ -288,6 +349,7 @@ fn denoise_in_pool(args: &DenoiseArgs, ctx: &RunContext) -> Result<()> {
     }
     let read_seconds = start.elapsed().as_secs_f64();
     let (w, h) = set.set.dims();
+    let set_dir = set.dir.clone();
     let mut buffers = Buffers::from(set.set);
     let (out, report) = pipeline.run(&mut buffers, ctx.seed, ctx.progress)?;
     let write_start = Instant::now();
@@ -330,7 +392,7 @@ fn denoise_in_pool(args: &DenoiseArgs, ctx: &RunContext) -> Result<()> {
         let steps = report.walk_steps();
         eprintln!(
             "gsid: {} ({w}x{h}) → {} in {:.3} s (pipeline {:.3} s, {:.1} M walk steps)",
-            args.dir.display(),
+            args.dir.as_ref().unwrap_or(&set_dir).display(),
             args.output.display(),
             start.elapsed().as_secs_f64(),
             report.seconds,
@@ -351,7 +413,7 @@ fn reference_for(set: &io::LoadedSet, given: Option<&PathBuf>) -> Result<crate::
                 "no reference found (here or one level up); pass --reference",
             )
         })?;
-    let mut reference = io::read_image(&path, 3)?;
+    let mut reference = set.read_reference(&path)?;
     if reference.dims() != set.set.dims() {
         return Err(Error::file(&path, "does not have the render set's size"));
     }
@@ -364,7 +426,7 @@ fn ablate(args: &AblateArgs, quiet: bool) -> Result<()> {
     let spec = args.run.spec()?;
     spec.build()?;
     let variants = ablate::variants(&spec)?;
-    let set = io::load_render_set(&args.dir)?;
+    let set = io::load_input(&args.dir, &[])?;
     let reference = reference_for(&set, args.reference.as_ref())?;
     // Reserved before the work, so an unwritable path fails fast.
     let pending = args
@@ -404,7 +466,7 @@ fn sweep(args: &SweepArgs, quiet: bool) -> Result<()> {
     base.build()?;
     let axes = sweep::parse_axes(&args.varies, &args.run.sets)?;
     let settings = sweep::settings(&base, &axes)?;
-    let set = io::load_render_set(&args.dir)?;
+    let set = io::load_input(&args.dir, &[])?;
     let reference = reference_for(&set, args.reference.as_ref())?;
     if args.out.exists() && !args.out.is_dir() {
         return Err(Error::output(&args.out, "is not a folder"));

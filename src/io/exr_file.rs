@@ -321,3 +321,50 @@ pub fn write(
         Ok(())
     })
 }
+
+/// Named channels of one size: width, height, and `(name, samples)` per channel.
+pub type Channels = (usize, usize, Vec<(String, Vec<f32>)>);
+
+/// Every channel of every non-deep part of an EXR file, as `(name, samples)`: a part's name (if it
+/// has one) is prefixed to its channels' names, so multi-part and multilayer files name alike.
+pub fn read_all_channels(path: &Path) -> Result<Channels> {
+    use exr::prelude::{FlatSamples, ReadChannels, ReadLayers};
+    let image = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .all_layers()
+        .all_attributes()
+        .from_file(path)
+        .map_err(|e| Error::file(path, format!("not a readable EXR file ({e})")))?;
+    let size = image
+        .layer_data
+        .first()
+        .map(|l| l.size)
+        .unwrap_or(Vec2(0, 0));
+    let mut channels = Vec::new();
+    for layer in &image.layer_data {
+        let part = layer.attributes.layer_name.as_ref().map(|n| n.to_string());
+        for c in &layer.channel_data.list {
+            let name = match &part {
+                Some(p) => format!("{p}.{}", c.name),
+                None => c.name.to_string(),
+            };
+            if layer.size != size || c.sampling != Vec2(1, 1) {
+                return Err(Error::file(
+                    path,
+                    format!(
+                        "channel {name} is not at the image's full size, which is not supported"
+                    ),
+                ));
+            }
+            let samples = match &c.sample_data {
+                FlatSamples::F16(v) => v.iter().map(|s| s.to_f32()).collect(),
+                FlatSamples::F32(v) => v.clone(),
+                FlatSamples::U32(v) => v.iter().map(|&s| s as f32).collect(),
+            };
+            channels.push((name, samples));
+        }
+    }
+    Ok((size.x(), size.y(), channels))
+}

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 
 mod exr_file;
 mod output;
+pub mod passes;
 
 pub use output::{remove_pending_outputs, PendingFolder, PendingOutput};
 
@@ -97,6 +98,8 @@ pub struct LoadedSet {
     pub reference: Option<PathBuf>,
     /// One line per thing worth telling the user (missing buffers, LDR input).
     pub notes: Vec<String>,
+    /// The input was one multilayer file, so its reference is read by pass name too.
+    pub layered: bool,
 }
 
 impl LoadedSet {
@@ -109,6 +112,16 @@ impl LoadedSet {
                 .map(|r| ("reference".to_string(), r.clone())),
         );
         files
+    }
+
+    /// Reads the reference as colour: by pass name (its `Combined`) for a multilayer input.
+    pub fn read_reference(&self, path: &Path) -> Result<Image> {
+        if !self.layered {
+            return read_image(path, 3);
+        }
+        let layers = passes::Layers::read(path)?;
+        let mut picked = layers.resolve(path, &[])?;
+        Ok(picked.swap_remove(0).image)
     }
 }
 
@@ -161,26 +174,11 @@ pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
             continue;
         };
         let img = img?;
-        if img.dims() != (w, h) {
-            return Err(Error::file(
-                &path,
-                format!(
-                    "is {}x{} but {} is {w}x{h}; all buffers of a render set must have one size",
-                    img.width(),
-                    img.height(),
-                    color_path.display()
-                ),
-            ));
-        }
+        check_size(&img, &path, (w, h), &color_path)?;
         set = set.with(feature, img)?;
         files.push((feature.name().to_string(), path));
     }
-    if !missing.is_empty() {
-        notes.push(format!(
-            "missing buffers (their features are off): {}",
-            missing.join(", ")
-        ));
-    }
+    note_missing(&mut notes, &missing);
     let reference = find_reference(dir);
     Ok(LoadedSet {
         dir: dir.to_path_buf(),
@@ -188,7 +186,148 @@ pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
         files,
         reference,
         notes,
+        layered: false,
     })
+}
+
+/// Loads a render set folder, or one multilayer or multi-part EXR file (`maps`: `buffer=layer`).
+pub fn load_input(path: &Path, maps: &[(String, String)]) -> Result<LoadedSet> {
+    if !path.is_file() {
+        if !maps.is_empty() {
+            return Err(Error::config(
+                "--map",
+                "applies to a multilayer file, not a folder",
+            ));
+        }
+        return load_render_set(path);
+    }
+    let layers = passes::Layers::read(path)?;
+    let mut picked = layers.resolve(path, maps)?.into_iter();
+    let color = picked.next().expect("colour is resolved first");
+    let mut mapping = vec![format!("color ← {}", color.source)];
+    let mut set = RenderSet::new(color.image);
+    let mut notes = Vec::new();
+    let mut files = vec![("color".to_string(), path.to_path_buf())];
+    for mut p in picked {
+        let feature = Feature::from_name(p.buffer).expect("a feature name");
+        if feature == Feature::Normal && passes::is_unit_encoded(&p.image) {
+            passes::decode_normal(&mut p.image);
+            notes.push(format!(
+                "{}: normal {} is stored in 0..1; remapped to -1..1",
+                path.display(),
+                p.source
+            ));
+        }
+        mapping.push(format!("{} ← {}", p.buffer, p.source));
+        set = set.with(feature, p.image)?;
+        files.push((p.buffer.to_string(), path.to_path_buf()));
+    }
+    notes.insert(0, format!("{}: {}", path.display(), mapping.join(", ")));
+    let recorded = layers.recorded();
+    if !recorded.is_empty() {
+        notes.push(format!("not used: {}", recorded.join(", ")));
+    }
+    let missing: Vec<&str> = set.features.missing().iter().map(|f| f.name()).collect();
+    note_missing(&mut notes, &missing);
+    let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let reference = Some(dir.join("reference.exr")).filter(|r| r.is_file() && r != path);
+    Ok(LoadedSet {
+        dir,
+        set,
+        files,
+        reference,
+        notes,
+        layered: true,
+    })
+}
+
+/// Splits `file.exr:Layer` into the file and the layer; a path that exists is taken whole.
+fn split_layer(spec: &Path) -> (PathBuf, Option<String>) {
+    if spec.is_file() {
+        return (spec.to_path_buf(), None);
+    }
+    match spec.to_str().and_then(|s| s.rsplit_once(':')) {
+        Some((file, layer)) if Path::new(file).is_file() => (file.into(), Some(layer.to_string())),
+        _ => (spec.to_path_buf(), None),
+    }
+}
+
+/// Loads buffers named one by one (`--color`, `--albedo`, …): each a file, or `file.exr:Layer`.
+/// A plain file is read as in a folder, so the two forms give the same bits.
+pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
+    let read = |buffer: &str, spec: &Path| -> Result<(Image, PathBuf, String)> {
+        let channels = passes::channels_of(buffer);
+        match split_layer(spec) {
+            (file, None) => Ok((
+                read_image(&file, channels)?,
+                file.clone(),
+                file.display().to_string(),
+            )),
+            (file, Some(layer)) => {
+                let (image, source) =
+                    passes::Layers::read(&file)?.layer(&file, &layer, channels)?;
+                let shown = format!("{}:{source}", file.display());
+                Ok((image, file, shown))
+            }
+        }
+    };
+    let color_spec = named
+        .iter()
+        .find(|(b, _)| *b == "color")
+        .ok_or_else(|| Error::config("--color", "is required with named inputs"))?;
+    let (color, color_path, shown) = read("color", &color_spec.1)?;
+    let (w, h) = color.dims();
+    let mut mapping = vec![format!("color ← {shown}")];
+    let mut set = RenderSet::new(color);
+    let mut files = vec![("color".to_string(), color_path.clone())];
+    for feature in Feature::ALL {
+        let Some((_, spec)) = named.iter().find(|(b, _)| *b == feature.name()) else {
+            continue;
+        };
+        let (img, file, shown) = read(feature.name(), spec)?;
+        check_size(&img, &file, (w, h), &color_path)?;
+        set = set.with(feature, img)?;
+        mapping.push(format!("{} ← {shown}", feature.name()));
+        files.push((feature.name().to_string(), file));
+    }
+    let mut notes = vec![mapping.join(", ")];
+    let missing: Vec<&str> = set.features.missing().iter().map(|f| f.name()).collect();
+    note_missing(&mut notes, &missing);
+    let dir = color_path.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let reference = find_reference(&dir);
+    Ok(LoadedSet {
+        dir,
+        set,
+        files,
+        reference,
+        notes,
+        layered: false,
+    })
+}
+
+/// Every buffer of a render set must have the colour's size.
+fn check_size(img: &Image, path: &Path, (w, h): (usize, usize), color_path: &Path) -> Result<()> {
+    if img.dims() == (w, h) {
+        return Ok(());
+    }
+    Err(Error::file(
+        path,
+        format!(
+            "is {}x{} but {} is {w}x{h}; all buffers of a render set must have one size",
+            img.width(),
+            img.height(),
+            color_path.display()
+        ),
+    ))
+}
+
+fn note_missing(notes: &mut Vec<String>, missing: &[&str]) {
+    if !missing.is_empty() {
+        notes.push(format!(
+            "missing buffers (their features are off): {}",
+            missing.join(", ")
+        ));
+    }
 }
 
 /// The converged reference of a render set: `reference.exr` in the folder or one level up.

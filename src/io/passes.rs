@@ -1,0 +1,289 @@
+//! Which layers of a multilayer or multi-part EXR become which buffer.
+//!
+//! Renderers name their passes differently (Blender `ViewLayer.Denoising Albedo.R`, Mitsuba
+//! `albedo.R`, Arnold `diffuse_albedo.R`), so the known names live in one table, with a preference
+//! order per buffer. Nothing is guessed: a colour that is missing or matched by two layers is an
+//! error naming every layer found, and `--map` says what the table cannot.
+
+use std::path::Path;
+
+use super::exr_file;
+use crate::error::{Error, Result};
+use crate::image::Image;
+use crate::render_set::Feature;
+
+/// Pass names (the last dotted part of a layer's name, compared ignoring case) per buffer, most
+/// preferred first. `""` is the unprefixed `R,G,B` of a plain or Mitsuba file.
+pub const PASSES: [(&str, &[&str]); 6] = [
+    ("color", &["Combined", "", "beauty", "rgba"]),
+    (
+        "albedo",
+        &["Denoising Albedo", "albedo", "diffuse_albedo", "DiffCol"],
+    ),
+    (
+        "normal",
+        &["Denoising Normal", "Normal", "nn", "sh_normal", "N"],
+    ),
+    ("depth", &["Denoising Depth", "Depth", "dd", "Z"]),
+    ("material", &["material"]),
+    ("shadow", &["shadow"]),
+];
+
+/// Passes recognised but not loaded: a variance estimate is not one of gsid's inputs.
+const RECORDED: [&str; 2] = ["variance", "Denoising Variance"];
+
+/// Channels of one buffer, by preference: a 3-channel buffer takes R,G,B or X,Y,Z.
+const RGB: [[&str; 2]; 3] = [["R", "X"], ["G", "Y"], ["B", "Z"]];
+/// A one-channel layer's channel, when it has more than one.
+const SINGLE: [&str; 5] = ["Z", "Y", "T", "R", "V"];
+
+/// The channels of an EXR grouped into layers by name prefix.
+pub struct Layers {
+    width: usize,
+    height: usize,
+    layers: Vec<Layer>,
+}
+
+struct Layer {
+    /// The full prefix (`ViewLayer.Combined`), `""` for unprefixed colour channels.
+    name: String,
+    /// Short channel names and their samples.
+    channels: Vec<(String, Vec<f32>)>,
+}
+
+impl Layer {
+    fn pass(&self) -> &str {
+        self.name.rsplit('.').next().unwrap_or("")
+    }
+
+    fn describe(&self) -> String {
+        let shorts: Vec<&str> = self.channels.iter().map(|(c, _)| c.as_str()).collect();
+        let list = format!("{{{}}}", shorts.join(","));
+        if self.name.is_empty() {
+            list
+        } else {
+            format!("{}.{list}", self.name)
+        }
+    }
+
+    fn find(&self, wanted: &[&str]) -> Option<usize> {
+        wanted.iter().find_map(|w| {
+            self.channels
+                .iter()
+                .position(|(c, _)| c.eq_ignore_ascii_case(w))
+        })
+    }
+
+    /// The layer's channels for a buffer of `channels` channels, in buffer order.
+    fn pick(&self, channels: usize) -> Option<Vec<usize>> {
+        if channels == 3 {
+            RGB.iter().map(|w| self.find(w)).collect()
+        } else if self.channels.len() == 1 {
+            Some(vec![0])
+        } else {
+            self.find(&SINGLE).map(|c| vec![c])
+        }
+    }
+}
+
+/// One buffer as read: its image and where it came from, for the mapping line.
+pub struct Picked {
+    pub buffer: &'static str,
+    pub image: Image,
+    pub source: String,
+}
+
+impl Layers {
+    pub fn read(path: &Path) -> Result<Layers> {
+        let (width, height, channels) = exr_file::read_all_channels(path)?;
+        let mut layers: Vec<Layer> = Vec::new();
+        for (full, samples) in channels {
+            let (prefix, short) = match full.rsplit_once('.') {
+                Some((p, s)) => (p.to_string(), s.to_string()),
+                // Unprefixed channels other than colour (Arnold's `Z`) are layers of their own.
+                None if ["R", "G", "B", "A"].contains(&full.as_str()) => (String::new(), full),
+                None => (full.clone(), full),
+            };
+            match layers.iter_mut().find(|l| l.name == prefix) {
+                Some(l) => l.channels.push((short, samples)),
+                None => layers.push(Layer {
+                    name: prefix,
+                    channels: vec![(short, samples)],
+                }),
+            }
+        }
+        Ok(Layers {
+            width,
+            height,
+            layers,
+        })
+    }
+
+    fn found(&self) -> String {
+        let all: Vec<String> = self.layers.iter().map(Layer::describe).collect();
+        format!("layers found: {}", all.join(", "))
+    }
+
+    fn image(&self, layer: &Layer, channels: usize) -> Option<Image> {
+        let picked = layer.pick(channels)?;
+        let n = self.width * self.height;
+        let mut data = vec![0.0f32; n * channels];
+        for (k, &c) in picked.iter().enumerate() {
+            for (px, &s) in data.chunks_exact_mut(channels).zip(&layer.channels[c].1) {
+                px[k] = s;
+            }
+        }
+        Image::from_vec(self.width, self.height, channels, data).ok()
+    }
+
+    fn source(layer: &Layer, channels: usize) -> String {
+        let picked = layer.pick(channels).unwrap_or_default();
+        let shorts: Vec<&str> = picked
+            .iter()
+            .map(|&c| layer.channels[c].0.as_str())
+            .collect();
+        let list = if shorts.len() == 1 {
+            shorts[0].to_string()
+        } else {
+            format!("{{{}}}", shorts.join(","))
+        };
+        if layer.name.is_empty() {
+            list
+        } else {
+            format!("{}.{list}", layer.name)
+        }
+    }
+
+    /// The layer `--map` or `file.exr:Layer` names: its full name, else its pass name if unique.
+    fn named(&self, path: &Path, name: &str) -> Result<&Layer> {
+        if let Some(l) = self.layers.iter().find(|l| l.name == name) {
+            return Ok(l);
+        }
+        let by_pass: Vec<&Layer> = self
+            .layers
+            .iter()
+            .filter(|l| l.pass().eq_ignore_ascii_case(name))
+            .collect();
+        match by_pass.as_slice() {
+            [one] => Ok(one),
+            _ => Err(Error::file(
+                path,
+                format!("has no single layer `{name}`; {}", self.found()),
+            )),
+        }
+    }
+
+    /// Reads the layer `name` as a buffer of `channels` channels.
+    pub fn layer(&self, path: &Path, name: &str, channels: usize) -> Result<(Image, String)> {
+        let layer = self.named(path, name)?;
+        let image = self.image(layer, channels).ok_or_else(|| {
+            Error::file(
+                path,
+                format!(
+                    "layer {} does not have {channels} usable channels",
+                    layer.describe()
+                ),
+            )
+        })?;
+        Ok((image, Self::source(layer, channels)))
+    }
+
+    /// Every buffer the file holds: `maps` (`buffer=layer`) first, then the table. The colour is
+    /// required and must be unambiguous; a feature matched by two layers is an error too.
+    pub fn resolve(&self, path: &Path, maps: &[(String, String)]) -> Result<Vec<Picked>> {
+        let mut out = Vec::new();
+        for (buffer, names) in PASSES {
+            let channels = channels_of(buffer);
+            if let Some((_, name)) = maps.iter().find(|(b, _)| b == buffer) {
+                let (image, source) = self.layer(path, name, channels)?;
+                out.push(Picked {
+                    buffer,
+                    image,
+                    source,
+                });
+                continue;
+            }
+            let Some(matches) = names.iter().find_map(|n| {
+                let m: Vec<&Layer> = self
+                    .layers
+                    .iter()
+                    .filter(|l| l.pass().eq_ignore_ascii_case(n) && l.pick(channels).is_some())
+                    .collect();
+                (!m.is_empty()).then_some(m)
+            }) else {
+                if buffer == "color" {
+                    return Err(Error::file(
+                        path,
+                        format!(
+                            "has no known colour layer (use --map color=LAYER); {}",
+                            self.found()
+                        ),
+                    ));
+                }
+                continue;
+            };
+            if matches.len() > 1 {
+                return Err(Error::file(
+                    path,
+                    format!(
+                        "{buffer} is ambiguous (use --map {buffer}=LAYER); {}",
+                        self.found()
+                    ),
+                ));
+            }
+            let layer = matches[0];
+            let image = self.image(layer, channels).expect("picked channels");
+            out.push(Picked {
+                buffer,
+                image,
+                source: Self::source(layer, channels),
+            });
+        }
+        Ok(out)
+    }
+
+    /// Layers recognised as passes gsid does not load (variance), for a note.
+    pub fn recorded(&self) -> Vec<String> {
+        self.layers
+            .iter()
+            .filter(|l| RECORDED.iter().any(|r| l.pass().eq_ignore_ascii_case(r)))
+            .map(Layer::describe)
+            .collect()
+    }
+}
+
+/// Channels of a buffer named in [`PASSES`].
+pub fn channels_of(buffer: &str) -> usize {
+    Feature::from_name(buffer).map_or(3, Feature::channels)
+}
+
+/// Whether a normal buffer is stored in 0..1 (`n * 0.5 + 0.5`): no negative component, and most
+/// non-zero pixels have `2n − 1`, not `n`, of unit length.
+pub fn is_unit_encoded(normal: &Image) -> bool {
+    if normal.data().iter().any(|&v| v < 0.0) {
+        return false;
+    }
+    let near_one =
+        |v: [f32; 3]| ((v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt() - 1.0).abs() < 0.1;
+    let (mut lit, mut encoded, mut plain) = (0usize, 0usize, 0usize);
+    for px in normal.data().chunks_exact(3) {
+        if px.iter().all(|&v| v == 0.0) {
+            continue;
+        }
+        lit += 1;
+        encoded += near_one([2.0 * px[0] - 1.0, 2.0 * px[1] - 1.0, 2.0 * px[2] - 1.0]) as usize;
+        plain += near_one([px[0], px[1], px[2]]) as usize;
+    }
+    lit > 0 && encoded * 10 >= lit * 9 && plain * 2 < lit
+}
+
+/// Maps a 0..1 encoded normal buffer back to unit vectors; empty (zero) pixels stay zero.
+pub fn decode_normal(normal: &mut Image) {
+    for px in normal.data_mut().chunks_exact_mut(3) {
+        if px.iter().any(|&v| v != 0.0) {
+            for v in px {
+                *v = 2.0 * *v - 1.0;
+            }
+        }
+    }
+}

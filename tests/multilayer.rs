@@ -1,0 +1,249 @@
+//! Multilayer and multi-part EXR files as one input, and buffers named one by one (`--hdr` …).
+
+mod common;
+
+use std::path::Path;
+
+use common::{assert_bad_input, gsid, stderr};
+use exr::prelude::{
+    read_all_flat_layers_from_file, AnyChannel, AnyChannels, FlatSamples, Image as ExrImage,
+    SmallVec, WritableImage,
+};
+use gsid::{io, Image};
+
+const CYCLES: &str = "fixtures/cycles-studio/spp4.exr";
+const MITSUBA: &str = "fixtures/mitsuba-aov/spp4.exr";
+
+/// The channels `names` of an EXR file, read with the exr crate, as one image.
+fn channels_of(path: &str, names: &[&str]) -> Image {
+    let file = read_all_flat_layers_from_file(path).expect("read fixture");
+    let layer = &file.layer_data[0];
+    let (w, h) = (layer.size.x(), layer.size.y());
+    let mut data = vec![0.0; w * h * names.len()];
+    for (k, name) in names.iter().enumerate() {
+        let c = layer
+            .channel_data
+            .list
+            .iter()
+            .find(|c| c.name.to_string() == *name)
+            .unwrap_or_else(|| panic!("{path} has no channel {name}"));
+        for (px, v) in data
+            .chunks_exact_mut(names.len())
+            .zip(c.sample_data.values_as_f32())
+        {
+            px[k] = v;
+        }
+    }
+    Image::from_vec(w, h, names.len(), data).unwrap()
+}
+
+/// Writes the Cycles fixture's colour, albedo, normal (and depth, if asked) as a render-set folder.
+fn cycles_folder(dir: &Path, depth: bool) {
+    let pass = |p: &str, cs: &[&str]| {
+        let names: Vec<String> = cs.iter().map(|c| format!("ViewLayer.{p}.{c}")).collect();
+        let names: Vec<&str> = names.iter().map(String::as_str).collect();
+        channels_of(CYCLES, &names)
+    };
+    io::write_exr(&dir.join("color.exr"), &pass("Combined", &["R", "G", "B"])).unwrap();
+    io::write_exr(
+        &dir.join("albedo.exr"),
+        &pass("Denoising Albedo", &["R", "G", "B"]),
+    )
+    .unwrap();
+    io::write_exr(
+        &dir.join("normal.exr"),
+        &pass("Denoising Normal", &["X", "Y", "Z"]),
+    )
+    .unwrap();
+    if depth {
+        io::write_exr(&dir.join("depth.exr"), &pass("Denoising Depth", &["Z"])).unwrap();
+    }
+}
+
+fn denoise(args: &[&str], out: &Path) -> Vec<u8> {
+    let mut all = vec!["denoise"];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["-o", out.to_str().unwrap()]);
+    let run = gsid(&all);
+    assert_eq!(run.status.code(), Some(0), "{}", stderr(&run));
+    std::fs::read(out).unwrap()
+}
+
+/// The `gsid: FILE: color ← …` line of a run.
+fn mapping_line(args: &[&str], out: &Path) -> String {
+    let mut all = vec!["denoise"];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["-o", out.to_str().unwrap()]);
+    let run = gsid(&all);
+    assert_eq!(run.status.code(), Some(0), "{}", stderr(&run));
+    stderr(&run)
+        .lines()
+        .find(|l| l.contains("color ←"))
+        .unwrap_or_else(|| panic!("no mapping line: {}", stderr(&run)))
+        .to_string()
+}
+
+#[test]
+fn cycles_file_denoises_as_its_passes_split_into_a_folder() {
+    let tmp = tempfile::tempdir().unwrap();
+    let folder = tmp.path().join("set");
+    std::fs::create_dir(&folder).unwrap();
+    cycles_folder(&folder, true);
+    let from_file = tmp.path().join("file.exr");
+    let line = mapping_line(&[CYCLES], &from_file);
+    for used in [
+        "color ← ViewLayer.Combined.{R,G,B}",
+        "albedo ← ViewLayer.Denoising Albedo.{R,G,B}",
+        "normal ← ViewLayer.Denoising Normal.{X,Y,Z}",
+        "depth ← ViewLayer.Denoising Depth.Z",
+    ] {
+        assert!(line.contains(used), "`{used}` not in: {line}");
+    }
+    let from_folder = denoise(&[folder.to_str().unwrap()], &tmp.path().join("folder.exr"));
+    assert!(
+        std::fs::read(&from_file).unwrap() == from_folder,
+        "file and folder outputs differ"
+    );
+}
+
+/// Writes one scan-line layer of f32 channels, `(name, value at pixel i)`.
+/// A channel's name and its value at each pixel index.
+type Channel<'a> = (&'a str, fn(usize) -> f32);
+
+fn write_layout(path: &Path, w: usize, h: usize, channels: &[Channel]) {
+    let list: SmallVec<[AnyChannel<FlatSamples>; 4]> = channels
+        .iter()
+        .map(|(name, f)| AnyChannel::new(*name, FlatSamples::F32((0..w * h).map(f).collect())))
+        .collect();
+    ExrImage::from_channels((w, h), AnyChannels::sort(list))
+        .write()
+        .to_file(path)
+        .unwrap();
+}
+
+fn ramp(i: usize) -> f32 {
+    (i % 13) as f32 / 13.0 + 0.1
+}
+
+fn flat(_: usize) -> f32 {
+    0.9
+}
+
+#[test]
+fn blender_ao_pass_is_not_taken_for_colour() {
+    let tmp = tempfile::tempdir().unwrap();
+    let file = tmp.path().join("render.exr");
+    write_layout(
+        &file,
+        16,
+        16,
+        &[
+            ("ViewLayer.AO.R", flat),
+            ("ViewLayer.AO.G", flat),
+            ("ViewLayer.AO.B", flat),
+            ("ViewLayer.Combined.R", ramp),
+            ("ViewLayer.Combined.G", ramp),
+            ("ViewLayer.Combined.B", ramp),
+            ("ViewLayer.Combined.A", flat),
+        ],
+    );
+    let line = mapping_line(&[file.to_str().unwrap()], &tmp.path().join("a.exr"));
+    assert!(
+        line.contains("color ← ViewLayer.Combined.{R,G,B}"),
+        "{line}"
+    );
+    let folder = tmp.path().join("set");
+    std::fs::create_dir(&folder).unwrap();
+    let color = Image::from_fn(16, 16, 3, |x, y, _| ramp(y * 16 + x));
+    io::write_exr(&folder.join("color.exr"), &color).unwrap();
+    let from_folder = denoise(&[folder.to_str().unwrap()], &tmp.path().join("b.exr"));
+    assert!(std::fs::read(tmp.path().join("a.exr")).unwrap() == from_folder);
+}
+
+#[test]
+fn two_unnamed_rgb_layers_exit_2_listing_the_layers() {
+    let tmp = tempfile::tempdir().unwrap();
+    let file = tmp.path().join("render.exr");
+    write_layout(
+        &file,
+        8,
+        8,
+        &[
+            ("left.R", ramp),
+            ("left.G", ramp),
+            ("left.B", ramp),
+            ("right.R", flat),
+            ("right.G", flat),
+            ("right.B", flat),
+        ],
+    );
+    let out = tmp.path().join("out.exr");
+    let run = gsid(&[
+        "denoise",
+        file.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_bad_input(&run, "left.{B,G,R}");
+    assert!(stderr(&run).contains("right.{B,G,R}"), "{}", stderr(&run));
+    assert!(!out.exists());
+    // Told which layer is colour, it runs.
+    let run = gsid(&[
+        "denoise",
+        file.to_str().unwrap(),
+        "--map",
+        "color=left",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(run.status.code(), Some(0), "{}", stderr(&run));
+}
+
+#[test]
+fn mitsuba_aov_file_is_read_with_its_depth() {
+    let tmp = tempfile::tempdir().unwrap();
+    let line = mapping_line(&[MITSUBA], &tmp.path().join("out.exr"));
+    for used in [
+        "color ← {R,G,B}",
+        "albedo ← albedo.{R,G,B}",
+        "normal ← nn.{X,Y,Z}",
+        "depth ← dd.T",
+    ] {
+        assert!(line.contains(used), "`{used}` not in: {line}");
+    }
+}
+
+#[test]
+fn oidn_names_give_the_folder_bytes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let folder = tmp.path().join("set");
+    std::fs::create_dir(&folder).unwrap();
+    cycles_folder(&folder, false);
+    let from_folder = denoise(&[folder.to_str().unwrap()], &tmp.path().join("folder.exr"));
+    let file = |n: &str| folder.join(n).to_str().unwrap().to_string();
+    let (c, a, n) = (file("color.exr"), file("albedo.exr"), file("normal.exr"));
+    let named = denoise(
+        &["--hdr", &c, "--alb", &a, "--nrm", &n],
+        &tmp.path().join("named.exr"),
+    );
+    assert!(
+        named == from_folder,
+        "--hdr/--alb/--nrm differ from the folder"
+    );
+    let layer = |p: &str| format!("{CYCLES}:ViewLayer.{p}");
+    let layers = denoise(
+        &[
+            "--color",
+            &layer("Combined"),
+            "--albedo",
+            &layer("Denoising Albedo"),
+            "--normal",
+            &layer("Denoising Normal"),
+        ],
+        &tmp.path().join("layers.exr"),
+    );
+    assert!(
+        layers == from_folder,
+        "file.exr:Layer inputs differ from the folder"
+    );
+}
