@@ -103,6 +103,32 @@ pub struct LoadedSet {
 }
 
 impl LoadedSet {
+    /// A loaded set, with the note on the feature buffers it lacks (each loader's last step).
+    fn new(
+        dir: PathBuf,
+        set: RenderSet,
+        files: Vec<(String, PathBuf)>,
+        reference: Option<PathBuf>,
+        mut notes: Vec<String>,
+        layered: bool,
+    ) -> Self {
+        let missing: Vec<&str> = set.features.missing().iter().map(|f| f.name()).collect();
+        if !missing.is_empty() {
+            notes.push(format!(
+                "missing buffers (their features are off): {}",
+                missing.join(", ")
+            ));
+        }
+        LoadedSet {
+            dir,
+            set,
+            files,
+            reference,
+            notes,
+            layered,
+        }
+    }
+
     /// Every file the set was read from, by buffer name, the reference included.
     pub fn inputs(&self) -> Vec<(String, PathBuf)> {
         let mut files = self.files.clone();
@@ -167,10 +193,8 @@ pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
     let (w, h) = color.dims();
     let mut set = RenderSet::new(color);
     files.push(("color".to_string(), color_path.clone()));
-    let mut missing = Vec::new();
     for ((feature, path), img) in found.into_iter().zip(decoded) {
         let (Some(path), Some(img)) = (path, img) else {
-            missing.push(feature.name());
             continue;
         };
         let img = img?;
@@ -178,16 +202,15 @@ pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
         set = set.with(feature, img)?;
         files.push((feature.name().to_string(), path));
     }
-    note_missing(&mut notes, &missing);
     let reference = find_reference(dir);
-    Ok(LoadedSet {
-        dir: dir.to_path_buf(),
+    Ok(LoadedSet::new(
+        dir.to_path_buf(),
         set,
         files,
         reference,
         notes,
-        layered: false,
-    })
+        false,
+    ))
 }
 
 /// Loads a render set folder, or one multilayer or multi-part EXR file (`maps`: `buffer=layer`).
@@ -227,18 +250,9 @@ pub fn load_input(path: &Path, maps: &[(String, String)]) -> Result<LoadedSet> {
     if !recorded.is_empty() {
         notes.push(format!("not used: {}", recorded.join(", ")));
     }
-    let missing: Vec<&str> = set.features.missing().iter().map(|f| f.name()).collect();
-    note_missing(&mut notes, &missing);
     let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let reference = Some(dir.join("reference.exr")).filter(|r| r.is_file() && r != path);
-    Ok(LoadedSet {
-        dir,
-        set,
-        files,
-        reference,
-        notes,
-        layered: true,
-    })
+    Ok(LoadedSet::new(dir, set, files, reference, notes, true))
 }
 
 /// Splits `file.exr:Layer` into the file and the layer; a path that exists is taken whole.
@@ -290,19 +304,10 @@ pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
         mapping.push(format!("{} ← {shown}", feature.name()));
         files.push((feature.name().to_string(), file));
     }
-    let mut notes = vec![mapping.join(", ")];
-    let missing: Vec<&str> = set.features.missing().iter().map(|f| f.name()).collect();
-    note_missing(&mut notes, &missing);
+    let notes = vec![mapping.join(", ")];
     let dir = color_path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let reference = find_reference(&dir);
-    Ok(LoadedSet {
-        dir,
-        set,
-        files,
-        reference,
-        notes,
-        layered: false,
-    })
+    Ok(LoadedSet::new(dir, set, files, reference, notes, false))
 }
 
 /// Every buffer of a render set must have the colour's size.
@@ -319,15 +324,6 @@ fn check_size(img: &Image, path: &Path, (w, h): (usize, usize), color_path: &Pat
             color_path.display()
         ),
     ))
-}
-
-fn note_missing(notes: &mut Vec<String>, missing: &[&str]) {
-    if !missing.is_empty() {
-        notes.push(format!(
-            "missing buffers (their features are off): {}",
-            missing.join(", ")
-        ));
-    }
 }
 
 /// The converged reference of a render set: `reference.exr` in the folder or one level up.
