@@ -473,7 +473,9 @@ fn sweep(args: &SweepArgs, quiet: bool) -> Result<()> {
     }
     let created = !args.out.exists();
     std::fs::create_dir_all(&args.out).map_err(|e| Error::output(&args.out, e))?;
-    let result = sweep_into(args, &ctx, &set, &reference, &axes, &settings);
+    let notes = set.notes;
+    let buffers = Buffers::from(set.set);
+    let result = sweep_into(args, &ctx, &notes, &buffers, &reference, &axes, &settings);
     if result.is_err() && created {
         // Leave nothing behind: the folder is empty again once the reserved files are dropped.
         let _ = std::fs::remove_dir(&args.out);
@@ -484,7 +486,8 @@ fn sweep(args: &SweepArgs, quiet: bool) -> Result<()> {
 fn sweep_into(
     args: &SweepArgs,
     ctx: &RunContext,
-    set: &io::LoadedSet,
+    notes: &[String],
+    buffers: &Buffers,
     reference: &crate::image::Image,
     axes: &[sweep::Axis],
     settings: &[sweep::Setting],
@@ -497,21 +500,16 @@ fn sweep_into(
         PendingOutput::create(&svg)?,
     );
     if ctx.progress {
-        for line in &set.notes {
+        for line in notes {
             eprintln!("gsid: {line}");
         }
     }
     let runs = (settings.len() * args.repeat) as u64;
     let progress = crate::progress::Progress::new(ctx.progress, "sweep", runs);
     let rows = ctx.install(|| {
-        sweep::run(
-            settings,
-            &Buffers::from(set.set.clone()),
-            reference,
-            ctx.seed,
-            args.repeat,
-            &|| progress.inc(1),
-        )
+        sweep::run(settings, buffers, reference, ctx.seed, args.repeat, &|| {
+            progress.inc(1)
+        })
     })?;
     progress.finish();
     let pipeline = settings.first().map_or("", |s| s.spec.name.as_str());
