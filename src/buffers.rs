@@ -9,7 +9,7 @@ use std::collections::BTreeMap;
 
 use crate::error::{Error, Result};
 use crate::image::Image;
-use crate::render_set::{Feature, FeatureSet, RenderSet};
+use crate::render_set::{Feature, FeatureSet, NoiseInputs, RenderSet};
 
 /// The buffer holding the render set's colour (a stage may replace it, e.g. with outliers repaired).
 pub const COLOR: &str = "color";
@@ -24,10 +24,16 @@ pub struct Buffers {
 
 impl From<RenderSet> for Buffers {
     fn from(set: RenderSet) -> Self {
+        let NoiseInputs { variance, halves } = set.noise;
+        let variance = variance.map(|v| (NoiseInputs::VARIANCE.to_string(), v));
+        let halves = halves
+            .into_iter()
+            .flat_map(|h| NoiseInputs::HALVES.map(String::from).into_iter().zip(h));
+        let created = variance.into_iter().chain(halves).collect();
         Buffers {
             color: Some(set.color),
             features: set.features,
-            created: BTreeMap::new(),
+            created,
         }
     }
 }

@@ -147,6 +147,33 @@ impl FeatureSet {
 pub struct RenderSet {
     pub color: Image,
     pub features: FeatureSet,
+    /// What the renderer measured of the colour's noise, when it wrote it.
+    pub noise: NoiseInputs,
+}
+
+/// Buffers that measure the colour's noise (docs/ALGORITHM.md §8). Renderers that write them
+/// (Arnold, RenderMan, Mitsuba's moment integrator, `gsid render`) spare the estimate from the image.
+#[derive(Clone, Debug, Default)]
+pub struct NoiseInputs {
+    /// Variance of the pixel mean, per RGB channel (buffer `variance`).
+    pub variance: Option<Image>,
+    /// Colour from two independent halves of the samples (buffers `color_a`, `color_b`).
+    pub halves: Option<[Image; 2]>,
+}
+
+impl NoiseInputs {
+    pub const VARIANCE: &'static str = "variance";
+    pub const HALVES: [&'static str; 2] = ["color_a", "color_b"];
+
+    /// The buffers present, by their file names.
+    pub fn buffers(&self) -> impl Iterator<Item = (&'static str, &Image)> {
+        let variance = self.variance.iter().map(|v| (Self::VARIANCE, v));
+        let halves = self
+            .halves
+            .iter()
+            .flat_map(|[a, b]| [(Self::HALVES[0], a), (Self::HALVES[1], b)]);
+        variance.chain(halves)
+    }
 }
 
 impl RenderSet {
@@ -154,6 +181,7 @@ impl RenderSet {
         RenderSet {
             color,
             features: FeatureSet::default(),
+            noise: NoiseInputs::default(),
         }
     }
 
