@@ -538,8 +538,8 @@ fn sweep_into(
 }
 
 fn eval(args: &EvalArgs) -> Result<()> {
-    let image = io::read_image(&args.image, 3)?;
-    let mut reference = io::read_image(&args.reference, 3)?;
+    let image = io::read_color(&args.image)?;
+    let mut reference = io::read_color(&args.reference)?;
     sanitize_reference(&mut reference);
     if image.dims() != reference.dims() {
         return Err(Error::file(

@@ -247,3 +247,20 @@ fn oidn_names_give_the_folder_bytes() {
         "file.exr:Layer inputs differ from the folder"
     );
 }
+
+/// `eval` reads a Blender file's `Combined`, not its first layer (`AO` sorts before it): the
+/// score of the bundled 4 spp render against its reference is its fixture README's figure.
+#[test]
+fn eval_scores_the_colour_pass_of_multilayer_files() {
+    let out = gsid(&[
+        "eval",
+        CYCLES,
+        "--reference",
+        "fixtures/cycles-studio/reference.exr",
+        "--json",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let ssim = report["ssim"].as_f64().unwrap();
+    assert!((ssim - 0.882).abs() < 5e-4, "SSIM {ssim}");
+}

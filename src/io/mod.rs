@@ -151,6 +151,20 @@ impl LoadedSet {
     }
 }
 
+/// Reads an image to score as colour: from a multilayer EXR its colour pass by the pass-name
+/// table (a Blender file's `Combined`, never the first layer that sorts before it), else RGB.
+pub fn read_color(path: &Path) -> Result<Image> {
+    let exr = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+    if !exr {
+        return read_image(path, 3);
+    }
+    let layers = passes::Layers::read(path)?;
+    let mut picked = layers.resolve(path, &[])?;
+    Ok(picked.swap_remove(0).image)
+}
+
 /// Finds a buffer file `name.{exr,png,jpg}` in `dir`.
 fn find_buffer_file(dir: &Path, name: &str) -> Option<PathBuf> {
     ["exr", "png", "jpg", "jpeg"]
