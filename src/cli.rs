@@ -37,6 +37,8 @@ pub struct Cli {
 }
 
 #[derive(Subcommand, Debug)]
+// Parsed once per process: the size of the largest variant (denoise's named inputs) costs nothing.
+#[allow(clippy::large_enum_variant)]
 pub enum Command {
     /// Denoise a render set folder (color.exr plus optional feature buffers).
     Denoise(DenoiseArgs),

@@ -203,19 +203,12 @@ pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
         files.push((feature.name().to_string(), path));
     }
     let exr = |name: &str| Some(dir.join(format!("{name}.exr"))).filter(|p| p.is_file());
-    let [a, b] = NoiseInputs::HALVES.map(exr);
-    let halves = match (a, b) {
-        (Some(a), Some(b)) => Some([a, b]),
-        (None, None) => None,
-        (a, _) => {
-            let missing = NoiseInputs::HALVES[a.is_some() as usize];
-            let have = NoiseInputs::HALVES[a.is_none() as usize];
-            return Err(Error::file(
-                dir.join(format!("{missing}.exr")),
-                format!("not found, but {have}.exr is: the two half-sample colours come together"),
-            ));
-        }
-    };
+    let halves = both_halves(NoiseInputs::HALVES.map(exr)).map_err(|(missing, have)| {
+        Error::file(
+            dir.join(format!("{missing}.exr")),
+            format!("not found, but {have}.exr is: the two half-sample colours come together"),
+        )
+    })?;
     let noise = NoiseFiles {
         variance: exr(NoiseInputs::VARIANCE),
         halves,
@@ -278,19 +271,14 @@ pub fn load_input(path: &Path, maps: &[(String, String)]) -> Result<LoadedSet> {
         set = set.with(feature, p.image)?;
         files.push((p.buffer.to_string(), path.to_path_buf()));
     }
-    set.noise.halves = match halves {
-        [Some(a), Some(b)] => Some([a, b]),
-        [None, None] => None,
-        [a, _] => {
-            let missing = NoiseInputs::HALVES[a.is_some() as usize];
-            return Err(Error::file(
-                path,
-                format!(
-                    "has one half-sample colour but no `{missing}` layer: the two come together (use --map {missing}=LAYER)"
-                ),
-            ));
-        }
-    };
+    set.noise.halves = both_halves(halves).map_err(|(missing, _)| {
+        Error::file(
+            path,
+            format!(
+                "has one half-sample colour but no `{missing}` layer: the two come together (use --map {missing}=LAYER)"
+            ),
+        )
+    })?;
     notes.insert(0, format!("{}: {}", path.display(), mapping.join(", ")));
     let recorded = layers.recorded();
     if !recorded.is_empty() {
@@ -353,22 +341,15 @@ pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
             .find(|(b, _)| *b == buffer)
             .map(|(_, p)| p.clone())
     };
-    let [a, b] = NoiseInputs::HALVES.map(spec_of);
-    let halves = match (a, b) {
-        (Some(a), Some(b)) => Some([a, b]),
-        (None, None) => None,
-        (a, _) => {
-            let missing = NoiseInputs::HALVES[a.is_some() as usize];
-            let have = NoiseInputs::HALVES[a.is_none() as usize];
-            return Err(Error::config(
-                format!("--{}", missing.replace('_', "-")),
-                format!(
-                    "is required with --{}: the two half-sample colours come together",
-                    have.replace('_', "-")
-                ),
-            ));
-        }
-    };
+    let halves = both_halves(NoiseInputs::HALVES.map(spec_of)).map_err(|(missing, have)| {
+        Error::config(
+            format!("--{}", missing.replace('_', "-")),
+            format!(
+                "is required with --{}: the two half-sample colours come together",
+                have.replace('_', "-")
+            ),
+        )
+    })?;
     let noise = NoiseFiles {
         variance: spec_of(NoiseInputs::VARIANCE),
         halves,
@@ -383,6 +364,25 @@ pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
     let dir = color_path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let reference = find_reference(&dir);
     Ok(LoadedSet::new(dir, set, files, reference, notes, false))
+}
+
+/// The two half-sample colours, which come together: both or neither, else the names of the
+/// missing one and of the one present.
+fn both_halves<T>(
+    [a, b]: [Option<T>; 2],
+) -> std::result::Result<Option<[T; 2]>, (&'static str, &'static str)> {
+    match (a, b) {
+        (Some(a), Some(b)) => Ok(Some([a, b])),
+        (None, None) => Ok(None),
+        (a, _) => {
+            let [first, second] = NoiseInputs::HALVES;
+            Err(if a.is_some() {
+                (second, first)
+            } else {
+                (first, second)
+            })
+        }
+    }
 }
 
 /// Where a set's noise buffers are (files, or `file.exr:Layer` for named inputs).
