@@ -400,8 +400,8 @@ fn one_half_alone_or_a_wrong_size_is_an_error_naming_the_buffer() {
         let e = io::load_render_set(&dir).err().unwrap();
         assert_eq!(e.exit_code(), 2);
         assert!(
-            e.to_string().contains(&format!("{missing}.exr")),
-            "{e} does not name {missing}"
+            e.to_string().contains(&format!("{missing}.exr: not found")),
+            "{e} does not name {missing} as the missing one"
         );
         let e = io::load_named(&[
             ("color", dir.join("color.exr")),
@@ -410,10 +410,14 @@ fn one_half_alone_or_a_wrong_size_is_an_error_naming_the_buffer() {
         .err()
         .unwrap();
         assert_eq!(e.exit_code(), 2);
+        let flag = |b: &str| format!("--{}", b.replace('_', "-"));
         assert!(
-            e.to_string()
-                .contains(&format!("--{}", missing.replace('_', "-"))),
-            "{e} does not name {missing}"
+            e.to_string().starts_with(&format!(
+                "{}: is required with {}",
+                flag(missing),
+                flag(have)
+            )),
+            "{e} does not name {missing} as the missing one"
         );
     }
     let dir = tmp.path().join("small");
