@@ -567,15 +567,17 @@ def main(argv=None):
     print()
     print("\n".join(summary(rows, spps)))
     print()
+    bm3d_note = f" BM3D: the bm3d_rgb call only, median of {args.bm3d_runs}." if args.bm3d_runs else ""
     print(f"¹ OIDN: oidnExecuteFilter only, device and filter created and committed beforehand, median of "
-          f"{args.runs}. BM3D: the bm3d_rgb call only, median of {args.bm3d_runs}. gsid: wall time of the whole "
+          f"{args.runs}.{bm3d_note} gsid: wall time of the whole "
           f"`gsid denoise SET --pipeline NAME -o OUT.exr --quiet` process (EXR reading and writing included), "
           f"median of {args.runs}.")
     print(f"² Whole process of a one-shot denoise, median of {args.runs}: for OIDN a fresh python3 that imports "
           f"pyoidn, reads color/albedo/normal, creates device and filter, runs once and writes the EXR; for gsid "
           f"the same figure as ¹. Scores: `gsid eval --json` against fixtures/NAME/reference.exr (SSIM on the "
-          f"clipped sRGB view, relMSE on linear HDR). BM3D: σ̂ estimated from the noisy image "
-          f"(skimage estimate_sigma, channel mean) under the {args.bm3d_curve} curve (its σ̂ is in the JSON).")
+          f"clipped sRGB view, relMSE on linear HDR)."
+          + (f" BM3D: σ̂ estimated from the noisy image (skimage estimate_sigma, channel mean) under the "
+             f"{args.bm3d_curve} curve (its σ̂ is in the JSON)." if args.bm3d_runs else ""))
 
     if args.json:
         Path(args.json).write_text(json.dumps({"header": header, "rows": rows}, indent=1) + "\n")
