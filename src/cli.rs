@@ -37,6 +37,8 @@ pub struct Cli {
 }
 
 #[derive(Subcommand, Debug)]
+// Parsed once per process: the size of the largest variant (denoise's named inputs) costs nothing.
+#[allow(clippy::large_enum_variant)]
 pub enum Command {
     /// Denoise a render set folder (color.exr plus optional feature buffers).
     Denoise(DenoiseArgs),
@@ -156,6 +158,14 @@ pub struct NamedInputs {
     pub material: Option<PathBuf>,
     #[arg(long, requires = "color")]
     pub shadow: Option<PathBuf>,
+    /// Variance of the pixel mean (RGB, or one channel used for all three).
+    #[arg(long, requires = "color")]
+    pub variance: Option<PathBuf>,
+    /// Colour from the first half of the samples (with --color-b, from the other half).
+    #[arg(long, requires_all = ["color", "color_b"])]
+    pub color_a: Option<PathBuf>,
+    #[arg(long, requires_all = ["color", "color_a"])]
+    pub color_b: Option<PathBuf>,
     /// Which layer of a multilayer input is a buffer, e.g. `--map albedo=ViewLayer.DiffCol` (repeatable).
     #[arg(long = "map", value_name = "BUFFER=LAYER")]
     pub maps: Vec<String>,
@@ -190,6 +200,9 @@ impl NamedInputs {
             ("depth", &self.depth),
             ("material", &self.material),
             ("shadow", &self.shadow),
+            ("variance", &self.variance),
+            ("color_a", &self.color_a),
+            ("color_b", &self.color_b),
         ]
         .into_iter()
         .filter_map(|(b, p)| p.clone().map(|p| (b, p)))

@@ -232,6 +232,13 @@ fn pick_channels(
     }
 }
 
+/// How many channels the file's first part holds, from its header alone.
+pub fn channel_count(path: &Path) -> Result<usize> {
+    let meta = exr::meta::MetaData::read_from_file(path, false)
+        .map_err(|e| Error::file(path, format!("not a readable EXR file ({e})")))?;
+    Ok(meta.headers.first().map_or(0, |h| h.channels.list.len()))
+}
+
 /// The header the exr crate's image-level API writes for one scan-line layer of f32 channels.
 fn header(w: usize, h: usize, names: &[&str], compression: Compression) -> Header {
     let mut list: SmallVec<[ChannelDescription; 5]> = names

@@ -15,7 +15,7 @@ pub use output::{remove_pending_outputs, PendingFolder, PendingOutput};
 
 use crate::error::{Error, Result};
 use crate::image::Image;
-use crate::render_set::{Feature, RenderSet};
+use crate::render_set::{Feature, NoiseInputs, RenderSet};
 
 /// Reads an image file as `channels` channels (3 = RGB, 1 = a single channel).
 ///
@@ -216,6 +216,19 @@ pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
         set = set.with(feature, img)?;
         files.push((feature.name().to_string(), path));
     }
+    let exr = |name: &str| Some(dir.join(format!("{name}.exr"))).filter(|p| p.is_file());
+    let halves = both_halves(NoiseInputs::HALVES.map(exr)).map_err(|(missing, have)| {
+        Error::file(
+            dir.join(format!("{missing}.exr")),
+            format!("not found, but {have}.exr is: the two half-sample colours come together"),
+        )
+    })?;
+    let noise = NoiseFiles {
+        variance: exr(NoiseInputs::VARIANCE),
+        halves,
+    };
+    let read_file = |_: &str, p: &Path| Ok((read_image(p, 3)?, p.to_path_buf(), None));
+    noise.load(&mut set, read_file, &color_path, &mut files, &mut notes)?;
     let reference = find_reference(dir);
     Ok(LoadedSet::new(
         dir.to_path_buf(),
@@ -245,7 +258,20 @@ pub fn load_input(path: &Path, maps: &[(String, String)]) -> Result<LoadedSet> {
     let mut set = RenderSet::new(color.image);
     let mut notes = Vec::new();
     let mut files = vec![("color".to_string(), path.to_path_buf())];
+    let mut halves = [None, None];
     for mut p in picked {
+        if let Some(k) = NoiseInputs::HALVES.iter().position(|&h| h == p.buffer) {
+            mapping.push(format!("{} ← {}", p.buffer, p.source));
+            files.push((p.buffer.to_string(), path.to_path_buf()));
+            halves[k] = Some(p.image);
+            continue;
+        }
+        if p.buffer == NoiseInputs::VARIANCE {
+            mapping.push(format!("{} ← {}", p.buffer, p.source));
+            files.push((p.buffer.to_string(), path.to_path_buf()));
+            set.noise.variance = Some(p.image);
+            continue;
+        }
         let feature = Feature::from_name(p.buffer).expect("a feature name");
         if feature == Feature::Normal && passes::is_unit_encoded(&p.image) {
             passes::decode_normal(&mut p.image);
@@ -259,6 +285,14 @@ pub fn load_input(path: &Path, maps: &[(String, String)]) -> Result<LoadedSet> {
         set = set.with(feature, p.image)?;
         files.push((p.buffer.to_string(), path.to_path_buf()));
     }
+    set.noise.halves = both_halves(halves).map_err(|(missing, _)| {
+        Error::file(
+            path,
+            format!(
+                "has one half-sample colour but no `{missing}` layer: the two come together (use --map {missing}=LAYER)"
+            ),
+        )
+    })?;
     notes.insert(0, format!("{}: {}", path.display(), mapping.join(", ")));
     let recorded = layers.recorded();
     if !recorded.is_empty() {
@@ -283,45 +317,134 @@ fn split_layer(spec: &Path) -> (PathBuf, Option<String>) {
 /// Loads buffers named one by one (`--color`, `--albedo`, …): each a file, or `file.exr:Layer`.
 /// A plain file is read as in a folder, so the two forms give the same bits.
 pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
-    let read = |buffer: &str, spec: &Path| -> Result<(Image, PathBuf, String)> {
+    let read = |buffer: &str, spec: &Path| -> Result<(Image, PathBuf, Option<String>)> {
         let channels = passes::channels_of(buffer);
         match split_layer(spec) {
-            (file, None) => Ok((
-                read_image(&file, channels)?,
-                file.clone(),
-                file.display().to_string(),
-            )),
+            (file, None) => Ok((read_image(&file, channels)?, file, None)),
             (file, Some(layer)) => {
                 let (image, source) =
                     passes::Layers::read(&file)?.layer(&file, &layer, channels)?;
                 let shown = format!("{}:{source}", file.display());
-                Ok((image, file, shown))
+                Ok((image, file, Some(shown)))
             }
         }
     };
+    let shown = |file: &Path, layer: Option<String>| layer.unwrap_or(file.display().to_string());
     let color_spec = named
         .iter()
         .find(|(b, _)| *b == "color")
         .ok_or_else(|| Error::config("--color", "is required with named inputs"))?;
-    let (color, color_path, shown) = read("color", &color_spec.1)?;
+    let (color, color_path, layer) = read("color", &color_spec.1)?;
     let (w, h) = color.dims();
-    let mut mapping = vec![format!("color ← {shown}")];
+    let mut mapping = vec![format!("color ← {}", shown(&color_path, layer))];
     let mut set = RenderSet::new(color);
     let mut files = vec![("color".to_string(), color_path.clone())];
     for feature in Feature::ALL {
         let Some((_, spec)) = named.iter().find(|(b, _)| *b == feature.name()) else {
             continue;
         };
-        let (img, file, shown) = read(feature.name(), spec)?;
+        let (img, file, layer) = read(feature.name(), spec)?;
         check_size(&img, &file, (w, h), &color_path)?;
         set = set.with(feature, img)?;
-        mapping.push(format!("{} ← {shown}", feature.name()));
+        mapping.push(format!("{} ← {}", feature.name(), shown(&file, layer)));
         files.push((feature.name().to_string(), file));
     }
-    let notes = vec![mapping.join(", ")];
+    let spec_of = |buffer: &str| {
+        named
+            .iter()
+            .find(|(b, _)| *b == buffer)
+            .map(|(_, p)| p.clone())
+    };
+    let halves = both_halves(NoiseInputs::HALVES.map(spec_of)).map_err(|(missing, have)| {
+        Error::config(
+            format!("--{}", missing.replace('_', "-")),
+            format!(
+                "is required with --{}: the two half-sample colours come together",
+                have.replace('_', "-")
+            ),
+        )
+    })?;
+    let noise = NoiseFiles {
+        variance: spec_of(NoiseInputs::VARIANCE),
+        halves,
+    };
+    let mut notes = Vec::new();
+    let before = files.len();
+    noise.load(&mut set, read, &color_path, &mut files, &mut notes)?;
+    for (buffer, file) in &files[before..] {
+        mapping.push(format!("{buffer} ← {}", file.display()));
+    }
+    notes.insert(0, mapping.join(", "));
     let dir = color_path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let reference = find_reference(&dir);
     Ok(LoadedSet::new(dir, set, files, reference, notes, false))
+}
+
+/// The two half-sample colours, which come together: both or neither, else the names of the
+/// missing one and of the one present.
+fn both_halves<T>(
+    [a, b]: [Option<T>; 2],
+) -> std::result::Result<Option<[T; 2]>, (&'static str, &'static str)> {
+    match (a, b) {
+        (Some(a), Some(b)) => Ok(Some([a, b])),
+        (None, None) => Ok(None),
+        (a, _) => {
+            let [first, second] = NoiseInputs::HALVES;
+            Err(if a.is_some() {
+                (second, first)
+            } else {
+                (first, second)
+            })
+        }
+    }
+}
+
+/// Where a set's noise buffers are (files, or `file.exr:Layer` for named inputs).
+struct NoiseFiles {
+    variance: Option<PathBuf>,
+    /// The two half-sample colours, which only come together.
+    halves: Option<[PathBuf; 2]>,
+}
+
+impl NoiseFiles {
+    /// Reads the noise buffers with `read` (buffer, spec → image, file, layer shown) into `set`,
+    /// checking sizes against the colour's like every other buffer. A one-channel variance file is
+    /// used for all three channels, with a note.
+    fn load(
+        self,
+        set: &mut RenderSet,
+        read: impl Fn(&str, &Path) -> Result<(Image, PathBuf, Option<String>)>,
+        color_path: &Path,
+        files: &mut Vec<(String, PathBuf)>,
+        notes: &mut Vec<String>,
+    ) -> Result<()> {
+        let dims = set.dims();
+        let mut read_checked = |buffer: &'static str, spec: &Path| -> Result<(Image, bool)> {
+            let (img, file, layer) = read(buffer, spec)?;
+            check_size(&img, &file, dims, color_path)?;
+            let plain_exr = layer.is_none() && file.extension().is_some_and(|e| e == "exr");
+            let one_channel = plain_exr && exr_file::channel_count(&file)? == 1;
+            files.push((buffer.to_string(), file));
+            Ok((img, one_channel))
+        };
+        if let Some(spec) = &self.variance {
+            let (img, one_channel) = read_checked(NoiseInputs::VARIANCE, spec)?;
+            if one_channel {
+                notes.push(format!(
+                    "{}: one-channel variance, used for R, G and B",
+                    spec.display()
+                ));
+            }
+            set.noise.variance = Some(img);
+        }
+        if let Some([a, b]) = &self.halves {
+            let [name_a, name_b] = NoiseInputs::HALVES;
+            let a = read_checked(name_a, a)?.0;
+            let b = read_checked(name_b, b)?.0;
+            set.noise.halves = Some([a, b]);
+        }
+        Ok(())
+    }
 }
 
 /// Every buffer of a render set must have the colour's size.

@@ -14,7 +14,12 @@ use crate::render_set::Feature;
 
 /// Pass names (the last dotted part of a layer's name, compared ignoring case) per buffer, most
 /// preferred first. `""` is the unprefixed `R,G,B` of a plain or Mitsuba file.
-pub const PASSES: [(&str, &[&str]); 6] = [
+///
+/// `variance` is the variance of the pixel mean, as Arnold and RenderMan variance AOVs and Cycles'
+/// old denoising data (`Denoising Variance`; 2.79: `Denoising Image Variance`) store it. Mitsuba's
+/// `moment` integrator writes a second moment (`m2_*`, in XYZ), which needs the sample count to
+/// become one, so it is not read.
+pub const PASSES: [(&str, &[&str]); 9] = [
     ("color", &["Combined", "", "beauty", "rgba"]),
     (
         "albedo",
@@ -27,10 +32,20 @@ pub const PASSES: [(&str, &[&str]); 6] = [
     ("depth", &["Denoising Depth", "Depth", "dd", "Z"]),
     ("material", &["material"]),
     ("shadow", &["shadow"]),
+    (
+        "variance",
+        &["variance", "Denoising Variance", "Denoising Image Variance"],
+    ),
+    ("color_a", &["color_a"]),
+    ("color_b", &["color_b"]),
 ];
 
-/// Passes recognised but not loaded: a variance estimate is not one of gsid's inputs.
-const RECORDED: [&str; 2] = ["variance", "Denoising Variance"];
+/// Passes recognised but not loaded: Cycles 2.79's variances of its feature passes.
+const RECORDED: [&str; 3] = [
+    "Denoising Normal Variance",
+    "Denoising Albedo Variance",
+    "Denoising Depth Variance",
+];
 
 /// Channels of one buffer, by preference: a 3-channel buffer takes R,G,B or X,Y,Z.
 const RGB: [[&str; 2]; 3] = [["R", "X"], ["G", "Y"], ["B", "Z"]];
@@ -242,7 +257,7 @@ impl Layers {
         Ok(out)
     }
 
-    /// Layers recognised as passes gsid does not load (variance), for a note.
+    /// Layers recognised as passes gsid does not load (feature variances), for a note.
     pub fn recorded(&self) -> Vec<String> {
         self.layers
             .iter()
