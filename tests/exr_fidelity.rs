@@ -4,7 +4,7 @@
 mod common;
 
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use common::{assert_bad_input, gsid, stderr};
 use exr::meta::attribute::{AttributeValue, IntegerBounds, SampleType, Text};
@@ -103,21 +103,30 @@ fn sample_type(s: &FlatSamples) -> SampleType {
     }
 }
 
-fn run(args: &[&str]) {
-    let run = gsid(args);
-    assert_eq!(run.status.code(), Some(0), "{}", stderr(&run));
-}
-
-fn denoise(input: &Path, out: &Path, flags: &[&str]) {
+/// `gsid denoise INPUT -o OUT FLAGS…`.
+fn denoise_run(input: &Path, out: &Path, flags: &[&str]) -> std::process::Output {
     let mut args = vec![
         "denoise",
         input.to_str().unwrap(),
         "-o",
         out.to_str().unwrap(),
-        "-q",
     ];
     args.extend_from_slice(flags);
-    run(&args);
+    gsid(&args)
+}
+
+fn denoise(input: &Path, out: &Path, flags: &[&str]) {
+    let run = denoise_run(input, out, &[&["-q"], flags].concat());
+    assert_eq!(run.status.code(), Some(0), "{}", stderr(&run));
+}
+
+/// A render-set folder `set` in `dir` whose `color.exr` has R, G, B, the `extra` channels and
+/// `header`.
+fn colour_set(dir: &Path, extra: Vec<(&str, FlatSamples)>, header: &Header) -> PathBuf {
+    let set = dir.join("set");
+    std::fs::create_dir(&set).unwrap();
+    write(&set.join("color.exr"), &["R", "G", "B"], extra, header);
+    set
 }
 
 /// An alpha no filter would leave alone: half floats with a NaN payload, a subnormal and -0.
@@ -142,15 +151,8 @@ fn odd_alpha() -> FlatSamples {
 #[test]
 fn rgba_alpha_comes_back_bit_exact() {
     let tmp = tempfile::tempdir().unwrap();
-    let set = tmp.path().join("set");
-    std::fs::create_dir(&set).unwrap();
     let alpha = odd_alpha();
-    write(
-        &set.join("color.exr"),
-        &["R", "G", "B"],
-        vec![("A", alpha.clone())],
-        &Header::default(),
-    );
+    let set = colour_set(tmp.path(), vec![("A", alpha.clone())], &Header::default());
     let out = tmp.path().join("out.exr");
     denoise(&set, &out, &[]);
     let image = read(&out);
@@ -177,14 +179,12 @@ fn rgba_alpha_comes_back_bit_exact() {
 #[test]
 fn data_and_display_windows_survive_and_buffers_must_share_them() {
     let tmp = tempfile::tempdir().unwrap();
-    let set = tmp.path().join("set");
-    std::fs::create_dir(&set).unwrap();
     let header = Header {
         origin: (-8, 12),
         display: IntegerBounds::new((0, 0), (40, 48)),
         custom: Vec::new(),
     };
-    write(&set.join("color.exr"), &["R", "G", "B"], vec![], &header);
+    let set = colour_set(tmp.path(), vec![], &header);
     write(&set.join("albedo.exr"), &["R", "G", "B"], vec![], &header);
     let out = tmp.path().join("out.exr");
     denoise(&set, &out, &[]);
@@ -198,12 +198,7 @@ fn data_and_display_windows_survive_and_buffers_must_share_them() {
         ..header
     };
     write(&set.join("albedo.exr"), &["R", "G", "B"], vec![], &shifted);
-    let run = gsid(&[
-        "denoise",
-        set.to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-    ]);
+    let run = denoise_run(&set, &out, &[]);
     assert_bad_input(&run, "albedo.exr");
     assert!(stderr(&run).contains("data window"), "{}", stderr(&run));
 }
@@ -211,8 +206,6 @@ fn data_and_display_windows_survive_and_buffers_must_share_them() {
 #[test]
 fn custom_attributes_survive_in_the_same_order_every_run() {
     let tmp = tempfile::tempdir().unwrap();
-    let set = tmp.path().join("set");
-    std::fs::create_dir(&set).unwrap();
     let custom = vec![
         ("renderer", "Cycles 4.5"),
         ("Camera", "shotcam"),
@@ -221,15 +214,11 @@ fn custom_attributes_survive_in_the_same_order_every_run() {
         ("Date", "2026/12/01"),
         ("Note", "crop"),
     ];
-    write(
-        &set.join("color.exr"),
-        &["R", "G", "B"],
-        vec![],
-        &Header {
-            custom: custom.clone(),
-            ..Header::default()
-        },
-    );
+    let header = Header {
+        custom: custom.clone(),
+        ..Header::default()
+    };
+    let set = colour_set(tmp.path(), vec![], &header);
     let (a, b) = (tmp.path().join("a.exr"), tmp.path().join("b.exr"));
     denoise(&set, &a, &[]);
     denoise(&set, &b, &[]);
@@ -250,15 +239,8 @@ fn custom_attributes_survive_in_the_same_order_every_run() {
 #[test]
 fn half_and_compression_set_the_header() {
     let tmp = tempfile::tempdir().unwrap();
-    let set = tmp.path().join("set");
-    std::fs::create_dir(&set).unwrap();
     let alpha = FlatSamples::F32((0..W * H).map(|i| i as f32 / 1000.0).collect());
-    write(
-        &set.join("color.exr"),
-        &["R", "G", "B"],
-        vec![("A", alpha.clone())],
-        &Header::default(),
-    );
+    let set = colour_set(tmp.path(), vec![("A", alpha.clone())], &Header::default());
     let out = tmp.path().join("out.exr");
     denoise(&set, &out, &["--half", "--compression", "piz"]);
     let image = read(&out);
@@ -279,14 +261,7 @@ fn half_and_compression_set_the_header() {
         Compression::RLE
     );
 
-    let run = gsid(&[
-        "denoise",
-        set.to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-        "--compression",
-        "jpeg",
-    ]);
+    let run = denoise_run(&set, &out, &["--compression", "jpeg"]);
     assert_eq!(run.status.code(), Some(2), "{}", stderr(&run));
     assert!(stderr(&run).contains("piz"), "{}", stderr(&run));
 }
@@ -329,22 +304,10 @@ fn keep_layers_writes_every_other_channel_unchanged() {
 #[test]
 fn keep_layers_without_other_layers_exits_2() {
     let tmp = tempfile::tempdir().unwrap();
-    let set = tmp.path().join("set");
-    std::fs::create_dir(&set).unwrap();
-    write(
-        &set.join("color.exr"),
-        &["R", "G", "B", "A"],
-        vec![],
-        &Header::default(),
-    );
+    let alpha = FlatSamples::F32(vec![1.0; W * H]);
+    let set = colour_set(tmp.path(), vec![("A", alpha)], &Header::default());
     let out = tmp.path().join("out.exr");
-    let run = gsid(&[
-        "denoise",
-        set.to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-        "--keep-layers",
-    ]);
+    let run = denoise_run(&set, &out, &["--keep-layers"]);
     assert_bad_input(&run, "--keep-layers");
     assert!(!out.exists());
 }
