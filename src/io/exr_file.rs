@@ -411,8 +411,8 @@ enum Source {
     Plane(usize),
 }
 
-/// Attributes that describe a multilayer channel layout, dropped when only the colour is written
-/// (Blender reads a file carrying its marker as multilayer).
+/// Attributes that mark a multilayer channel layout: dropped when only the colour is written, so
+/// a plain RGBA file does not claim to be one.
 const LAYOUT_ATTRIBUTES: [&str; 1] = ["BlenderMultiChannel"];
 
 /// The header of one scan-line layer: the image's channels as `sample_type`, the planes as
