@@ -140,6 +140,22 @@ pub struct DenoiseArgs {
     /// Print each stage's time (and each pyramid level's) after the run.
     #[arg(long)]
     pub timings: bool,
+    /// Write the denoised colour as half floats; copied channels (alpha, layers) keep their type.
+    #[arg(long)]
+    pub half: bool,
+    /// EXR compression: none, rle, zips, zip, piz, or the lossy pxr24, b44, b44a, dwaa, dwab.
+    #[arg(long, value_name = "METHOD", default_value = "rle", value_parser = compression)]
+    pub compression: io::Compression,
+    /// Also write every other channel of the colour's EXR unchanged (a multilayer input's passes).
+    #[arg(long)]
+    pub keep_layers: bool,
+}
+
+fn compression(name: &str) -> std::result::Result<io::Compression, String> {
+    io::Compression::from_name(name).ok_or_else(|| {
+        let names: Vec<&str> = io::Compression::NAMES.iter().map(|(n, _)| *n).collect();
+        format!("expected one of {}", names.join(", "))
+    })
 }
 
 /// Buffers named one by one instead of a folder; each a file or `file.exr:Layer`.
@@ -349,6 +365,20 @@ fn denoise_in_pool(args: &DenoiseArgs, ctx: &RunContext) -> Result<()> {
         .chain(saves.iter().map(|(_, p)| p.as_path()))
         .collect();
     check_outputs(&set.inputs(), &outputs)?;
+    let mut frame = set.frame;
+    if args.keep_layers {
+        if !frame.has_layers() {
+            let (_, color) = &set.files[0];
+            return Err(Error::config(
+                "--keep-layers",
+                format!(
+                    "{} holds no channels besides the colour's; it applies to a multilayer EXR",
+                    color.display()
+                ),
+            ));
+        }
+        frame.read_layers()?;
+    }
     // Reserve every output before the work, so an unwritable path fails fast and nothing half-written remains.
     let pending = PendingOutput::create(&args.output)?;
     let pending_saves = saves
@@ -358,6 +388,12 @@ fn denoise_in_pool(args: &DenoiseArgs, ctx: &RunContext) -> Result<()> {
     if ctx.progress {
         for line in &set.notes {
             eprintln!("gsid: {line}");
+        }
+        if args.compression.is_lossy() && (frame.has_alpha() || args.keep_layers) {
+            eprintln!(
+                "gsid: --compression {} is lossy: the copied alpha and layers are not bit-exact",
+                args.compression.name()
+            );
         }
     }
     let read_seconds = start.elapsed().as_secs_f64();
@@ -381,9 +417,9 @@ fn denoise_in_pool(args: &DenoiseArgs, ctx: &RunContext) -> Result<()> {
                 ),
             )
         })?;
-        pending.write_exr(buf, io::Compression::Rle)?;
+        pending.write_exr_framed(buf, &frame.windows_only(), args.compression, args.half)?;
     }
-    pending.write_exr(&out, io::Compression::Rle)?;
+    pending.write_exr_framed(&out, &frame, args.compression, args.half)?;
     let write_seconds = write_start.elapsed().as_secs_f64();
     if ctx.progress {
         for line in &report.notes {

@@ -11,6 +11,7 @@ mod exr_file;
 mod output;
 pub mod passes;
 
+pub use exr_file::{Frame, Plane};
 pub use output::{remove_pending_outputs, PendingFolder, PendingOutput};
 
 use crate::error::{Error, Result};
@@ -22,14 +23,20 @@ use crate::render_set::{Feature, NoiseInputs, RenderSet};
 /// EXR channels are matched on the last dotted component of their names, so Blender-style
 /// `ViewLayer.Combined.R` works as well as `R`. One-channel reads accept `Y`, `Z`, `R`, or a file's only channel.
 pub fn read_image(path: &Path, channels: usize) -> Result<Image> {
+    read_framed(path, channels, false).map(|(image, _)| image)
+}
+
+/// Reads an image file and what an output keeps of it ([`Frame`]; the default for PNG/JPEG),
+/// with its alpha if `alpha`.
+fn read_framed(path: &Path, channels: usize, alpha: bool) -> Result<(Image, Frame)> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .unwrap_or("")
         .to_ascii_lowercase();
     match ext.as_str() {
-        "exr" => read_exr(path, channels),
-        "png" | "jpg" | "jpeg" => read_ldr(path, channels),
+        "exr" => read_exr(path, channels, alpha),
+        "png" | "jpg" | "jpeg" => Ok((read_ldr(path, channels)?, Frame::default())),
         _ => Err(Error::file(
             path,
             "unsupported image format (expected .exr, .png or .jpg)",
@@ -37,11 +44,11 @@ pub fn read_image(path: &Path, channels: usize) -> Result<Image> {
     }
 }
 
-fn read_exr(path: &Path, channels: usize) -> Result<Image> {
+fn read_exr(path: &Path, channels: usize, alpha: bool) -> Result<(Image, Frame)> {
     if !path.is_file() {
         return Err(Error::file(path, "file not found"));
     }
-    exr_file::read(path, channels)
+    exr_file::read(path, channels, alpha)
 }
 
 fn read_ldr(path: &Path, channels: usize) -> Result<Image> {
@@ -70,7 +77,7 @@ pub fn srgb_to_linear(v: f32) -> f32 {
     }
 }
 
-/// How an EXR's pixels are compressed (both lossless).
+/// How an EXR's pixels are compressed: every method the exr crate writes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Compression {
     /// Deflate: a third smaller on noisy renders, but about 5 ms per 128×128 image to write.
@@ -78,6 +85,71 @@ pub enum Compression {
     /// Run-length: almost free to write. Denoised float colour barely compresses either way (ZIP
     /// saved 1.5 %, 187 against 190 KB at 128×128), so results are written with it.
     Rle,
+    None,
+    /// Deflate, one scan line per block.
+    Zips,
+    Piz,
+    /// Lossy for f32 (rounded to 24 bits), lossless for f16.
+    Pxr24,
+    /// Lossy for f16, which it alone compresses.
+    B44,
+    /// B44 that also packs flat blocks (lossy for f16).
+    B44a,
+    /// Lossy (DCT) for colour channels, 32 lines per block.
+    Dwaa,
+    /// Lossy (DCT) for colour channels, 256 lines per block.
+    Dwab,
+}
+
+impl Compression {
+    /// The `--compression` names, in the order they are listed.
+    pub const NAMES: [(&'static str, Compression); 10] = [
+        ("none", Compression::None),
+        ("rle", Compression::Rle),
+        ("zips", Compression::Zips),
+        ("zip", Compression::Zip),
+        ("piz", Compression::Piz),
+        ("pxr24", Compression::Pxr24),
+        ("b44", Compression::B44),
+        ("b44a", Compression::B44a),
+        ("dwaa", Compression::Dwaa),
+        ("dwab", Compression::Dwab),
+    ];
+
+    pub fn name(self) -> &'static str {
+        Self::NAMES
+            .iter()
+            .find(|(_, c)| *c == self)
+            .map_or("", |(n, _)| n)
+    }
+
+    pub fn from_name(name: &str) -> Option<Compression> {
+        Self::NAMES
+            .iter()
+            .find(|(n, _)| n.eq_ignore_ascii_case(name))
+            .map(|&(_, c)| c)
+    }
+
+    /// Whether the method can change samples: then copied channels are no longer bit-exact.
+    pub fn is_lossy(self) -> bool {
+        self.exr().may_loose_data()
+    }
+
+    fn exr(self) -> exr_file::Compression {
+        use exr_file::Compression as C;
+        match self {
+            Compression::Zip => C::ZIP16,
+            Compression::Rle => C::RLE,
+            Compression::None => C::Uncompressed,
+            Compression::Zips => C::ZIP1,
+            Compression::Piz => C::PIZ,
+            Compression::Pxr24 => C::PXR24,
+            Compression::B44 => C::B44,
+            Compression::B44a => C::B44A,
+            Compression::Dwaa => C::DWAA(None),
+            Compression::Dwab => C::DWAB(None),
+        }
+    }
 }
 
 /// Writes an EXR (float32, zip-compressed): RGB for 3 channels, `Y` for one.
@@ -100,6 +172,8 @@ pub struct LoadedSet {
     pub notes: Vec<String>,
     /// The input was one multilayer file, so its reference is read by pass name too.
     pub layered: bool,
+    /// What the output keeps of the colour's file (FORMATS.md, "What the output keeps").
+    pub frame: Frame,
 }
 
 impl LoadedSet {
@@ -126,7 +200,14 @@ impl LoadedSet {
             reference,
             notes,
             layered,
+            frame: Frame::default(),
         }
+    }
+
+    /// The set with the colour's [`Frame`].
+    fn with_frame(mut self, frame: Frame) -> Self {
+        self.frame = frame;
+        self
     }
 
     /// Every file the set was read from, by buffer name, the reference included.
@@ -194,16 +275,17 @@ pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
         .iter()
         .map(|&f| (f, find_buffer_file(dir, f.name())))
         .collect();
-    let (color, decoded): (Result<Image>, Vec<Option<Result<Image>>>) = rayon::join(
-        || read_image(&color_path, 3),
+    type Decoded = Result<(Image, Frame)>;
+    let (color, decoded): (Decoded, Vec<Option<Decoded>>) = rayon::join(
+        || read_framed(&color_path, 3, true),
         || {
             found
                 .par_iter()
-                .map(|(f, path)| path.as_ref().map(|p| read_image(p, f.channels())))
+                .map(|(f, path)| path.as_ref().map(|p| read_framed(p, f.channels(), false)))
                 .collect()
         },
     );
-    let color = color?;
+    let (color, frame) = color?;
     let (w, h) = color.dims();
     let mut set = RenderSet::new(color);
     files.push(("color".to_string(), color_path.clone()));
@@ -211,8 +293,9 @@ pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
         let (Some(path), Some(img)) = (path, img) else {
             continue;
         };
-        let img = img?;
+        let (img, window) = img?;
         check_size(&img, &path, (w, h), &color_path)?;
+        check_window(&window, &path, &frame, &color_path)?;
         set = set.with(feature, img)?;
         files.push((feature.name().to_string(), path));
     }
@@ -227,17 +310,10 @@ pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
         variance: exr(NoiseInputs::VARIANCE),
         halves,
     };
-    let read_file = |_: &str, p: &Path| Ok((read_image(p, 3)?, p.to_path_buf(), None));
+    let read_file = |_: &'static str, p: &Path| Ok((read_image(p, 3)?, p.to_path_buf(), None));
     noise.load(&mut set, read_file, &color_path, &mut files, &mut notes)?;
     let reference = find_reference(dir);
-    Ok(LoadedSet::new(
-        dir.to_path_buf(),
-        set,
-        files,
-        reference,
-        notes,
-        false,
-    ))
+    Ok(LoadedSet::new(dir.to_path_buf(), set, files, reference, notes, false).with_frame(frame))
 }
 
 /// Loads a render set folder, or one multilayer or multi-part EXR file (`maps`: `buffer=layer`).
@@ -254,6 +330,7 @@ pub fn load_input(path: &Path, maps: &[(String, String)]) -> Result<LoadedSet> {
     let layers = passes::Layers::read(path)?;
     let mut picked = layers.resolve(path, maps)?.into_iter();
     let color = picked.next().expect("colour is resolved first");
+    let frame = layers.frame(path, &color);
     let mut mapping = vec![format!("color ← {}", color.source)];
     let mut set = RenderSet::new(color.image);
     let mut notes = Vec::new();
@@ -300,7 +377,7 @@ pub fn load_input(path: &Path, maps: &[(String, String)]) -> Result<LoadedSet> {
     }
     let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let reference = Some(dir.join("reference.exr")).filter(|r| r.is_file() && r != path);
-    Ok(LoadedSet::new(dir, set, files, reference, notes, true))
+    Ok(LoadedSet::new(dir, set, files, reference, notes, true).with_frame(frame))
 }
 
 /// Splits `file.exr:Layer` into the file and the layer; a path that exists is taken whole.
@@ -317,36 +394,42 @@ fn split_layer(spec: &Path) -> (PathBuf, Option<String>) {
 /// Loads buffers named one by one (`--color`, `--albedo`, …): each a file, or `file.exr:Layer`.
 /// A plain file is read as in a folder, so the two forms give the same bits.
 pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
-    let read = |buffer: &str, spec: &Path| -> Result<(Image, PathBuf, Option<String>)> {
+    let read = |buffer: &'static str, spec: &Path| -> Result<(Image, Frame, PathBuf, String)> {
         let channels = passes::channels_of(buffer);
+        let colour = buffer == "color";
         match split_layer(spec) {
-            (file, None) => Ok((read_image(&file, channels)?, file, None)),
+            (file, None) => {
+                let (image, frame) = read_framed(&file, channels, colour)?;
+                let shown = file.display().to_string();
+                Ok((image, frame, file, shown))
+            }
             (file, Some(layer)) => {
-                let (image, source) =
-                    passes::Layers::read(&file)?.layer(&file, &layer, channels)?;
-                let shown = format!("{}:{source}", file.display());
-                Ok((image, file, Some(shown)))
+                let layers = passes::Layers::read(&file)?;
+                let picked = layers.layer(&file, &layer, buffer)?;
+                let frame = layers.frame(&file, &picked);
+                let shown = format!("{}:{}", file.display(), picked.source);
+                Ok((picked.image, frame, file, shown))
             }
         }
     };
-    let shown = |file: &Path, layer: Option<String>| layer.unwrap_or(file.display().to_string());
     let color_spec = named
         .iter()
         .find(|(b, _)| *b == "color")
         .ok_or_else(|| Error::config("--color", "is required with named inputs"))?;
-    let (color, color_path, layer) = read("color", &color_spec.1)?;
+    let (color, frame, color_path, shown) = read("color", &color_spec.1)?;
     let (w, h) = color.dims();
-    let mut mapping = vec![format!("color ← {}", shown(&color_path, layer))];
+    let mut mapping = vec![format!("color ← {shown}")];
     let mut set = RenderSet::new(color);
     let mut files = vec![("color".to_string(), color_path.clone())];
     for feature in Feature::ALL {
         let Some((_, spec)) = named.iter().find(|(b, _)| *b == feature.name()) else {
             continue;
         };
-        let (img, file, layer) = read(feature.name(), spec)?;
+        let (img, window, file, shown) = read(feature.name(), spec)?;
         check_size(&img, &file, (w, h), &color_path)?;
+        check_window(&window, &file, &frame, &color_path)?;
         set = set.with(feature, img)?;
-        mapping.push(format!("{} ← {}", feature.name(), shown(&file, layer)));
+        mapping.push(format!("{} ← {shown}", feature.name()));
         files.push((feature.name().to_string(), file));
     }
     let spec_of = |buffer: &str| {
@@ -370,14 +453,18 @@ pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
     };
     let mut notes = Vec::new();
     let before = files.len();
-    noise.load(&mut set, read, &color_path, &mut files, &mut notes)?;
+    let read_noise = |buffer: &'static str, spec: &Path| {
+        let layered = split_layer(spec).1.is_some();
+        read(buffer, spec).map(|(img, _, file, shown)| (img, file, layered.then_some(shown)))
+    };
+    noise.load(&mut set, read_noise, &color_path, &mut files, &mut notes)?;
     for (buffer, file) in &files[before..] {
         mapping.push(format!("{buffer} ← {}", file.display()));
     }
     notes.insert(0, mapping.join(", "));
     let dir = color_path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let reference = find_reference(&dir);
-    Ok(LoadedSet::new(dir, set, files, reference, notes, false))
+    Ok(LoadedSet::new(dir, set, files, reference, notes, false).with_frame(frame))
 }
 
 /// The two half-sample colours, which come together: both or neither, else the names of the
@@ -413,7 +500,7 @@ impl NoiseFiles {
     fn load(
         self,
         set: &mut RenderSet,
-        read: impl Fn(&str, &Path) -> Result<(Image, PathBuf, Option<String>)>,
+        read: impl Fn(&'static str, &Path) -> Result<(Image, PathBuf, Option<String>)>,
         color_path: &Path,
         files: &mut Vec<(String, PathBuf)>,
         notes: &mut Vec<String>,
@@ -459,6 +546,26 @@ fn check_size(img: &Image, path: &Path, (w, h): (usize, usize), color_path: &Pat
             img.width(),
             img.height(),
             color_path.display()
+        ),
+    ))
+}
+
+/// Every buffer of a render set must lie where the colour does: an output keeps the colour's
+/// data window, so a buffer shifted against it would guide the wrong pixels.
+fn check_window(window: &Frame, path: &Path, color: &Frame, color_path: &Path) -> Result<()> {
+    let (at, want) = (window.origin(), color.origin());
+    if at == want {
+        return Ok(());
+    }
+    Err(Error::file(
+        path,
+        format!(
+            "has its data window at ({}, {}) but {} has it at ({}, {}); all buffers of a render set must share the colour's data window",
+            at.0,
+            at.1,
+            color_path.display(),
+            want.0,
+            want.1
         ),
     ))
 }
