@@ -107,10 +107,12 @@ fn an_unknown_or_missing_extension_is_refused_before_any_work() {
             "mask.exr.bak",
         ),
     ];
+    // A buffer no pipeline makes, saved first: a run that got as far as the pipeline fails on it
+    // instead, after the work.
+    let late = format!("no_such_buffer={}", s(&tmp.path().join("late.exr")));
     for (outputs, culprit) in cases {
-        let mut args = vec!["denoise", s(&set)];
+        let mut args = vec!["denoise", s(&set), "--save-buffer", &late];
         args.extend(outputs.iter().map(String::as_str));
-        // Not quiet: a run that got as far as the pipeline would print its notes too.
         let run = gsid(&args);
         assert_bad_input(&run, culprit);
         assert!(
