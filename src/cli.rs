@@ -124,19 +124,25 @@ impl RunOptions {
 
 #[derive(clap::Args, Debug)]
 pub struct DenoiseArgs {
-    /// Render set folder, or one multilayer EXR file (omit with --color).
-    #[arg(required_unless_present = "color")]
+    /// Render set folder, or one multilayer EXR file (omit with --color or --ldr).
+    #[arg(required_unless_present_any = ["color", "ldr"])]
     pub dir: Option<PathBuf>,
     #[command(flatten)]
     pub inputs: NamedInputs,
     #[command(flatten)]
     pub run: RunOptions,
-    /// Output EXR path (written atomically; never an input file).
+    /// Output path (written atomically; never an input file). Its extension picks the format:
+    /// .exr or .pfm (float), .png or .jpg (8-bit preview); `-` writes EXR to stdout.
     #[arg(long, short)]
     pub output: PathBuf,
-    /// Also save an intermediate buffer, e.g. `--save-buffer outlier_mask=mask.exr` (repeatable).
-    #[arg(long = "save-buffer", value_name = "NAME=FILE.exr")]
+    /// Also save an intermediate buffer, e.g. `--save-buffer outlier_mask=mask.exr` (repeatable;
+    /// formats as for -o).
+    #[arg(long = "save-buffer", value_name = "NAME=FILE")]
     pub save_buffers: Vec<String>,
+    /// Exposure of .png/.jpg previews in stops (×2^EV before clamping and the sRGB curve). Float
+    /// outputs are written as computed, so it is an error when no output is a preview.
+    #[arg(long, value_name = "EV", allow_negative_numbers = true)]
+    pub exposure: Option<f32>,
     /// Print each stage's time (and each pyramid level's) after the run.
     #[arg(long)]
     pub timings: bool,
@@ -160,19 +166,23 @@ fn compression(name: &str) -> std::result::Result<io::Compression, String> {
 
 /// Buffers named one by one instead of a folder; each a file or `file.exr:Layer`.
 #[derive(clap::Args, Debug, Clone)]
+#[command(group(clap::ArgGroup::new("colour").args(["color", "ldr"])))]
 pub struct NamedInputs {
     /// Colour (noisy beauty) image.
     #[arg(long, alias = "hdr", conflicts_with = "dir")]
     pub color: Option<PathBuf>,
-    #[arg(long, alias = "alb", requires = "color")]
+    /// Colour as an 8-bit sRGB PNG or JPEG (linearised; not HDR, so highlights are clipped).
+    #[arg(long, conflicts_with_all = ["dir", "color"])]
+    pub ldr: Option<PathBuf>,
+    #[arg(long, alias = "alb", requires = "colour")]
     pub albedo: Option<PathBuf>,
-    #[arg(long, alias = "nrm", requires = "color")]
+    #[arg(long, alias = "nrm", requires = "colour")]
     pub normal: Option<PathBuf>,
-    #[arg(long, requires = "color")]
+    #[arg(long, requires = "colour")]
     pub depth: Option<PathBuf>,
-    #[arg(long, requires = "color")]
+    #[arg(long, requires = "colour")]
     pub material: Option<PathBuf>,
-    #[arg(long, requires = "color")]
+    #[arg(long, requires = "colour")]
     pub shadow: Option<PathBuf>,
     /// Variance of the pixel mean (RGB, or one channel used for all three).
     #[arg(long, requires = "color")]
@@ -209,19 +219,25 @@ impl NamedInputs {
         if !maps.is_empty() {
             return Err(Error::config("--map", "applies to a multilayer file input"));
         }
+        if let Some(ldr) = self.ldr.as_deref().filter(|p| !io::is_ldr(p)) {
+            return Err(Error::file(
+                ldr,
+                "--ldr takes an 8-bit sRGB PNG or JPEG; give HDR colour with --color",
+            ));
+        }
         let named: Vec<(&'static str, PathBuf)> = [
-            ("color", &self.color),
-            ("albedo", &self.albedo),
-            ("normal", &self.normal),
-            ("depth", &self.depth),
-            ("material", &self.material),
-            ("shadow", &self.shadow),
-            ("variance", &self.variance),
-            ("color_a", &self.color_a),
-            ("color_b", &self.color_b),
+            ("color", self.color.as_ref().or(self.ldr.as_ref())),
+            ("albedo", self.albedo.as_ref()),
+            ("normal", self.normal.as_ref()),
+            ("depth", self.depth.as_ref()),
+            ("material", self.material.as_ref()),
+            ("shadow", self.shadow.as_ref()),
+            ("variance", self.variance.as_ref()),
+            ("color_a", self.color_a.as_ref()),
+            ("color_b", self.color_b.as_ref()),
         ]
         .into_iter()
-        .filter_map(|(b, p)| p.clone().map(|p| (b, p)))
+        .filter_map(|(b, p)| p.map(|p| (b, p.clone())))
         .collect();
         io::load_named(&named)
     }
@@ -324,10 +340,11 @@ fn same_file(a: &Path, b: &Path) -> bool {
     resolved(a) == resolved(b)
 }
 
-/// Before any work: no output may be one of the run's input files (buffers or the reference),
-/// and no two outputs may be one path (one would silently lose).
+/// Before any work: every output's extension names a format, no output may be one of the run's
+/// input files (buffers or the reference), and no two outputs may be one path (one would silently lose).
 fn check_outputs(inputs: &[(String, PathBuf)], outputs: &[&Path]) -> Result<()> {
     for (i, out) in outputs.iter().enumerate() {
+        io::ImageFormat::of_output(out)?;
         if let Some((name, _)) = inputs.iter().find(|(_, f)| same_file(f, out)) {
             return Err(Error::output(
                 out,
@@ -379,6 +396,20 @@ fn denoise_in_pool(args: &DenoiseArgs, ctx: &RunContext) -> Result<()> {
         }
         frame.read_layers()?;
     }
+    let previews = outputs
+        .iter()
+        .any(|p| io::ImageFormat::of_output(p).is_ok_and(|f| f != io::ImageFormat::Exr));
+    if previews && (args.half || args.keep_layers) {
+        return Err(Error::config(
+            if args.half { "--half" } else { "--keep-layers" },
+            "applies to EXR outputs only",
+        ));
+    }
+    let encoding = io::Encoding {
+        compression: args.compression,
+        half: args.half,
+        exposure: preview_exposure(args.exposure, &outputs)?,
+    };
     // Reserve every output before the work, so an unwritable path fails fast and nothing half-written remains.
     let pending = PendingOutput::create(&args.output)?;
     let pending_saves = saves
@@ -417,9 +448,9 @@ fn denoise_in_pool(args: &DenoiseArgs, ctx: &RunContext) -> Result<()> {
                 ),
             )
         })?;
-        pending.write_exr_framed(buf, &frame.windows_only(), args.compression, args.half)?;
+        io::write_image(pending, buf, &frame.windows_only(), &encoding)?;
     }
-    pending.write_exr_framed(&out, &frame, args.compression, args.half)?;
+    io::write_image(pending, &out, &frame, &encoding)?;
     let write_seconds = write_start.elapsed().as_secs_f64();
     if ctx.progress {
         for line in &report.notes {
@@ -449,6 +480,26 @@ fn denoise_in_pool(args: &DenoiseArgs, ctx: &RunContext) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// `--exposure` in stops (0 without it). It scales previews only, so given with none it would
+/// silently do nothing: that is an error.
+fn preview_exposure(exposure: Option<f32>, outputs: &[&Path]) -> Result<f32> {
+    let Some(ev) = exposure else {
+        return Ok(0.0);
+    };
+    if !(-32.0..=32.0).contains(&ev) {
+        return Err(Error::range("--exposure", ev, "-32 to 32 stops"));
+    }
+    for out in outputs {
+        if io::ImageFormat::of_output(out)?.is_preview() {
+            return Ok(ev);
+        }
+    }
+    Err(Error::config(
+        "--exposure",
+        "applies to .png and .jpg outputs only, and no output is one (float outputs are written as computed)",
+    ))
 }
 
 /// The reference for scoring a render set: `--reference`, else the one FORMATS.md places.

@@ -1,17 +1,22 @@
 //! Reading and writing images and render sets (FORMATS.md).
 //!
-//! EXR goes through the `exr` crate (any channel names, f16/f32/u32 samples); 8-bit PNG/JPEG colour
-//! through `image`, decoded from sRGB to linear. Writes go to a temporary file in the target folder
+//! EXR goes through the `exr` crate (any channel names, f16/f32/u32 samples); PFM is read and written
+//! as Open Image Denoise does (`pfm.rs`); 8-bit PNG/JPEG colour through `image`, decoded from sRGB to
+//! linear. An output's extension picks its format (`format.rs`). Writes go to a temporary file in the target folder
 //! that is renamed into place, so a failed run never leaves a half-written image.
 
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
 mod exr_file;
+mod format;
 mod output;
 pub mod passes;
+pub mod pfm;
+mod preview;
 
 pub use exr_file::{Frame, Plane};
+pub use format::{write_image, Encoding, ImageFormat};
 pub use output::{remove_pending_outputs, PendingFolder, PendingOutput};
 
 use crate::error::{Error, Result};
@@ -29,19 +34,38 @@ pub fn read_image(path: &Path, channels: usize) -> Result<Image> {
 /// Reads an image file and what an output keeps of it ([`Frame`]; the default for PNG/JPEG),
 /// with its alpha if `alpha`.
 fn read_framed(path: &Path, channels: usize, alpha: bool) -> Result<(Image, Frame)> {
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .unwrap_or("")
-        .to_ascii_lowercase();
-    match ext.as_str() {
+    match extension(path).as_str() {
         "exr" => read_exr(path, channels, alpha),
+        "pfm" => Ok((pfm::read(path, channels)?, Frame::default())),
         "png" | "jpg" | "jpeg" => Ok((read_ldr(path, channels)?, Frame::default())),
         _ => Err(Error::file(
             path,
-            "unsupported image format (expected .exr, .png or .jpg)",
+            "unsupported image format (expected .exr, .pfm, .png or .jpg)",
         )),
     }
+}
+
+/// A path's extension in lower case (empty if it has none).
+fn extension(path: &Path) -> String {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase()
+}
+
+/// An 8-bit sRGB image (PNG or JPEG), by extension.
+pub fn is_ldr(path: &Path) -> bool {
+    matches!(extension(path).as_str(), "png" | "jpg" | "jpeg")
+}
+
+/// The note a render set read from 8-bit colour carries.
+fn ldr_note(color: &Path) -> Option<String> {
+    is_ldr(color).then(|| {
+        format!(
+            "{}: 8-bit colour is not HDR; highlights are clipped",
+            color.display()
+        )
+    })
 }
 
 fn read_exr(path: &Path, channels: usize, alpha: bool) -> Result<(Image, Frame)> {
@@ -246,9 +270,9 @@ pub fn read_color(path: &Path) -> Result<Image> {
     Ok(picked.swap_remove(0).image)
 }
 
-/// Finds a buffer file `name.{exr,png,jpg}` in `dir`.
+/// Finds a buffer file `name.{exr,pfm,png,jpg}` in `dir`.
 fn find_buffer_file(dir: &Path, name: &str) -> Option<PathBuf> {
-    ["exr", "png", "jpg", "jpeg"]
+    ["exr", "pfm", "png", "jpg", "jpeg"]
         .iter()
         .map(|ext| dir.join(format!("{name}.{ext}")))
         .find(|p| p.is_file())
@@ -259,16 +283,10 @@ pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
     if !dir.is_dir() {
         return Err(Error::file(dir, "is not a render set folder"));
     }
-    let mut notes = Vec::new();
     let mut files = Vec::new();
     let color_path = find_buffer_file(dir, "color")
         .ok_or_else(|| Error::file(dir.join("color.exr"), "required buffer `color` not found"))?;
-    if color_path.extension().is_some_and(|e| e != "exr") {
-        notes.push(format!(
-            "{}: 8-bit colour is not HDR; highlights are clipped",
-            color_path.display()
-        ));
-    }
+    let mut notes: Vec<String> = ldr_note(&color_path).into_iter().collect();
     // The files are independent: decode them all on all threads (colour, the largest, beside the
     // features), then check them in order, so the first error reported is the same on every run.
     let found: Vec<(Feature, Option<PathBuf>)> = Feature::ALL
@@ -462,6 +480,7 @@ pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
         mapping.push(format!("{buffer} ← {}", file.display()));
     }
     notes.insert(0, mapping.join(", "));
+    notes.extend(ldr_note(&color_path));
     let dir = color_path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let reference = find_reference(&dir);
     Ok(LoadedSet::new(dir, set, files, reference, notes, false).with_frame(frame))
