@@ -175,6 +175,9 @@ pub fn read_mask(
     }
 }
 
+/// The most a stage's σ grows over `sigma` with the noise.
+const MAX_GAIN: f64 = 2.0;
+
 /// How a stage's `sigma` follows the noise: σ = sigma · (level / noise_ref)^noise_power, with
 /// level the image's typical noise after the tone curve (`crate::noise::tone_level`).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -236,7 +239,11 @@ impl NoiseScaling {
             ));
         }
         let level = crate::noise::tone_level(color, variance, exposure);
-        let factor = (level / self.noise_ref as f64).powf(self.noise_power as f64);
+        // Above the reference level σ grows no further than MAX_GAIN×: at very high noise the
+        // estimate also holds fine geometry taken for noise, and a larger σ would average it away.
+        let factor = (level / self.noise_ref as f64)
+            .powf(self.noise_power as f64)
+            .min(MAX_GAIN);
         let scaled = (sigma as f64 * factor).clamp(1e-3, 1e3) as f32;
         ctx.note(format!(
             "{label} (level {}): noise level {level:.4} → σ {scaled:.3}",

@@ -58,7 +58,10 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
     if spec.stages.len() > 1 || spec.stages.iter().any(|s| s.kind == "pyramid") {
         for (i, stage) in spec.stages.iter().enumerate() {
             let mut v = spec.clone();
-            let name = if stage.kind == "pyramid" {
+            let name = if stage.kind == "noise" {
+                // Later stages read its buffer: the noise rows below take it out whole.
+                continue;
+            } else if stage.kind == "pyramid" {
                 // One level: the sub-stages at full size, with only the overrides that apply there.
                 v.stages[i].overrides.levels.retain(|_, o| o.level == 0);
                 v.stages[i].set(&["levels"], toml::Value::Integer(1))?;
@@ -72,6 +75,7 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
             out.push(Variant { name, spec: v });
         }
     }
+    out.extend(noise_variants(spec)?);
     let paths = feature_paths(spec);
     if !paths.is_empty() {
         for name in Weights::NAMES {
@@ -89,6 +93,62 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
         name: "plain SID".into(),
         spec: PipelineSpec::resolve("sid")?,
     });
+    Ok(out)
+}
+
+/// The rows that show what measuring the noise buys, for a pipeline with `noise` stages: every
+/// noise stage, noise key and blend taken out ("fixed σ", the behaviour before the stages followed
+/// the noise); the noise always estimated from the image (a `variance` buffer, if any, ignored);
+/// and the walks taken out (the pyramid removed, à-trous on the colour, σ still from the noise).
+fn noise_variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
+    let is_noise = |s: &StageSpec| s.kind == "noise";
+    if !spec
+        .stages
+        .iter()
+        .any(|s| is_noise(s) || s.children.iter().any(is_noise))
+    {
+        return Ok(Vec::new());
+    }
+    let mut fixed = spec.clone();
+    fixed.stages.retain(|s| !is_noise(s) && s.kind != "blend");
+    for s in &mut fixed.stages {
+        s.params.remove("noise");
+        s.children.retain(|c| !is_noise(c));
+        for c in &mut s.children {
+            c.params.remove("noise");
+        }
+    }
+    let mut from_image = spec.clone();
+    for s in &mut from_image.stages {
+        let image = toml::Value::String("image".into());
+        if is_noise(s) {
+            s.params.insert("source".into(), image.clone());
+        }
+        for c in s.children.iter_mut().filter(|c| is_noise(c)) {
+            c.params.insert("source".into(), image.clone());
+        }
+    }
+    let mut out = vec![
+        Variant {
+            name: "fixed σ (no noise measured)".into(),
+            spec: fixed,
+        },
+        Variant {
+            name: "noise from the image only".into(),
+            spec: from_image,
+        },
+    ];
+    if let Some(p) = spec.stages.iter().position(|s| s.kind == "pyramid") {
+        let mut v = spec.clone();
+        v.stages.remove(p);
+        for s in v.stages.iter_mut().filter(|s| s.kind == "atrous") {
+            s.io.input = crate::buffers::COLOR.into();
+        }
+        out.push(Variant {
+            name: "without walks (à-trous alone)".into(),
+            spec: v,
+        });
+    }
     Ok(out)
 }
 

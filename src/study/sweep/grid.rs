@@ -380,9 +380,9 @@ mod tests {
 
     #[test]
     fn varying_levels_drops_the_files_overrides_of_missing_levels() {
-        // `full` tunes level1 (σ 0.25); with one level that override has nothing to apply to.
-        let full = PipelineSpec::resolve("full").unwrap();
-        let s = settings(&full, &[parse_axis("pyramid.levels=1,2").unwrap()]).unwrap();
+        // `pyramid` tunes level1 (σ 0.25); with one level that override has nothing to apply to.
+        let pyramid_spec = PipelineSpec::resolve("pyramid").unwrap();
+        let s = settings(&pyramid_spec, &[parse_axis("pyramid.levels=1,2").unwrap()]).unwrap();
         let pyramid = |i: usize| s[i].spec.stages.iter().find(|s| s.id == "pyramid").unwrap();
         assert!(!pyramid(0).overrides.levels.contains_key("level1"));
         assert_eq!(s[0].notes.len(), 1, "{:?}", s[0].notes);
