@@ -38,6 +38,8 @@
 //! ```
 
 pub mod atrous;
+#[cfg(feature = "cli")]
+pub mod batch;
 pub mod buffers;
 #[cfg(feature = "cli")]
 pub mod cli;

@@ -11,7 +11,7 @@ mod exr_file;
 mod output;
 pub mod passes;
 
-pub use output::{remove_pending_outputs, PendingFolder, PendingOutput};
+pub use output::{remove_pending_outputs, PendingFolder, PendingOutput, STDOUT};
 
 use crate::error::{Error, Result};
 use crate::image::Image;
@@ -94,6 +94,9 @@ pub struct LoadedSet {
     pub set: RenderSet,
     /// Path of each loaded buffer, by name.
     pub files: Vec<(String, PathBuf)>,
+    /// Where each buffer's channels came from, by name: its file, `file:Layer`, or a layer's
+    /// channels (the mapping line's data).
+    pub sources: Vec<(String, String)>,
     /// The reference image path, if one was found (in the folder or one level up).
     pub reference: Option<PathBuf>,
     /// One line per thing worth telling the user (missing buffers, LDR input).
@@ -108,6 +111,7 @@ impl LoadedSet {
         dir: PathBuf,
         set: RenderSet,
         files: Vec<(String, PathBuf)>,
+        sources: Vec<(String, String)>,
         reference: Option<PathBuf>,
         mut notes: Vec<String>,
         layered: bool,
@@ -123,10 +127,17 @@ impl LoadedSet {
             dir,
             set,
             files,
+            sources,
             reference,
             notes,
             layered,
         }
+    }
+
+    /// The one line saying which channels became which buffer.
+    fn mapping_line(sources: &[(String, String)]) -> String {
+        let pairs: Vec<String> = sources.iter().map(|(b, s)| format!("{b} ← {s}")).collect();
+        pairs.join(", ")
     }
 
     /// Every file the set was read from, by buffer name, the reference included.
@@ -157,6 +168,11 @@ fn find_buffer_file(dir: &Path, name: &str) -> Option<PathBuf> {
         .iter()
         .map(|ext| dir.join(format!("{name}.{ext}")))
         .find(|p| p.is_file())
+}
+
+/// Whether `dir` is a render set folder (it holds a `color` file).
+pub fn is_render_set(dir: &Path) -> bool {
+    find_buffer_file(dir, "color").is_some()
 }
 
 /// Loads a render set folder: `color` is required, feature buffers are optional.
@@ -203,10 +219,15 @@ pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
         files.push((feature.name().to_string(), path));
     }
     let reference = find_reference(dir);
+    let sources = files
+        .iter()
+        .map(|(b, p)| (b.clone(), p.display().to_string()))
+        .collect();
     Ok(LoadedSet::new(
         dir.to_path_buf(),
         set,
         files,
+        sources,
         reference,
         notes,
         false,
@@ -227,7 +248,7 @@ pub fn load_input(path: &Path, maps: &[(String, String)]) -> Result<LoadedSet> {
     let layers = passes::Layers::read(path)?;
     let mut picked = layers.resolve(path, maps)?.into_iter();
     let color = picked.next().expect("colour is resolved first");
-    let mut mapping = vec![format!("color ← {}", color.source)];
+    let mut sources = vec![("color".to_string(), color.source)];
     let mut set = RenderSet::new(color.image);
     let mut notes = Vec::new();
     let mut files = vec![("color".to_string(), path.to_path_buf())];
@@ -241,18 +262,21 @@ pub fn load_input(path: &Path, maps: &[(String, String)]) -> Result<LoadedSet> {
                 p.source
             ));
         }
-        mapping.push(format!("{} ← {}", p.buffer, p.source));
+        sources.push((p.buffer.to_string(), p.source));
         set = set.with(feature, p.image)?;
         files.push((p.buffer.to_string(), path.to_path_buf()));
     }
-    notes.insert(0, format!("{}: {}", path.display(), mapping.join(", ")));
+    let mapping = LoadedSet::mapping_line(&sources);
+    notes.insert(0, format!("{}: {mapping}", path.display()));
     let recorded = layers.recorded();
     if !recorded.is_empty() {
         notes.push(format!("not used: {}", recorded.join(", ")));
     }
     let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let reference = Some(dir.join("reference.exr")).filter(|r| r.is_file() && r != path);
-    Ok(LoadedSet::new(dir, set, files, reference, notes, true))
+    Ok(LoadedSet::new(
+        dir, set, files, sources, reference, notes, true,
+    ))
 }
 
 /// Splits `file.exr:Layer` into the file and the layer; a path that exists is taken whole.
@@ -291,7 +315,7 @@ pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
         .ok_or_else(|| Error::config("--color", "is required with named inputs"))?;
     let (color, color_path, shown) = read("color", &color_spec.1)?;
     let (w, h) = color.dims();
-    let mut mapping = vec![format!("color ← {shown}")];
+    let mut sources = vec![("color".to_string(), shown)];
     let mut set = RenderSet::new(color);
     let mut files = vec![("color".to_string(), color_path.clone())];
     for feature in Feature::ALL {
@@ -301,13 +325,15 @@ pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
         let (img, file, shown) = read(feature.name(), spec)?;
         check_size(&img, &file, (w, h), &color_path)?;
         set = set.with(feature, img)?;
-        mapping.push(format!("{} ← {shown}", feature.name()));
+        sources.push((feature.name().to_string(), shown));
         files.push((feature.name().to_string(), file));
     }
-    let notes = vec![mapping.join(", ")];
+    let notes = vec![LoadedSet::mapping_line(&sources)];
     let dir = color_path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let reference = find_reference(&dir);
-    Ok(LoadedSet::new(dir, set, files, reference, notes, false))
+    Ok(LoadedSet::new(
+        dir, set, files, sources, reference, notes, false,
+    ))
 }
 
 /// Every buffer of a render set must have the colour's size.
