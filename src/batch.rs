@@ -457,7 +457,7 @@ pub fn denoise_or_skip(
     }
     let report = cli::denoise_frame(args, pipeline, ctx, stage_progress, say)?;
     cli::tell(&report, args.timings, say);
-    Ok(Outcome::Done(report))
+    Ok(Outcome::Done(Box::new(report)))
 }
 
 /// A folder without a `color` file whose subfolders are render sets.
@@ -591,7 +591,7 @@ struct Entry {
 #[derive(Serialize)]
 #[serde(tag = "status", rename_all = "lowercase")]
 pub enum Outcome {
-    Done(FrameReport),
+    Done(Box<FrameReport>),
     Skipped { output: String },
     Failed { error: String, exit_code: i32 },
 }

@@ -97,16 +97,7 @@ fn skip_existing_rerun_reads_and_writes_nothing() {
     let first = sequence(tmp.path(), &["-q"]);
     assert!(first.status.success(), "{}", stderr(&first));
     let out = tmp.path().join("out");
-    let before: Vec<_> = files_in(&out)
-        .iter()
-        .map(|f| {
-            let p = out.join(f);
-            (
-                std::fs::read(&p).unwrap(),
-                p.metadata().unwrap().modified().unwrap(),
-            )
-        })
-        .collect();
+    let before = snapshot(&out);
     assert_eq!(before.len(), 3);
     // The inputs go: a rerun that read one frame would fail.
     std::fs::remove_dir_all(&shot_dir).unwrap();
@@ -115,20 +106,22 @@ fn skip_existing_rerun_reads_and_writes_nothing() {
     assert!(rerun.status.success(), "{err}");
     assert_eq!(err.matches("skipped, ").count(), 3, "{err}");
     assert!(err.contains("3 skipped"), "{err}");
-    let after: Vec<_> = files_in(&out)
-        .iter()
-        .map(|f| {
-            let p = out.join(f);
-            (
-                std::fs::read(&p).unwrap(),
-                p.metadata().unwrap().modified().unwrap(),
-            )
-        })
-        .collect();
     assert!(
-        before == after,
+        snapshot(&out) == before,
         "outputs changed on a --skip-existing rerun"
     );
+}
+
+/// Every file of `dir` with its bytes and modification time.
+fn snapshot(dir: &Path) -> Vec<(String, Vec<u8>, std::time::SystemTime)> {
+    files_in(dir)
+        .into_iter()
+        .map(|f| {
+            let p = dir.join(&f);
+            let modified = p.metadata().unwrap().modified().unwrap();
+            (f, std::fs::read(&p).unwrap(), modified)
+        })
+        .collect()
 }
 
 #[test]
