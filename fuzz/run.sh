@@ -1,12 +1,12 @@
 #!/bin/sh
-# Builds the fuzz targets, then runs each given target (default: all three) for SECONDS (default 600)
+# Builds the fuzz targets, then runs each given target (default: all four) for SECONDS (default 600)
 # one after the other, on one core each. Logs: fuzz/logs/TARGET.log and TARGET.worker.log.
 # Seeds the corpora first if they are missing.
 set -eu
 here=$(cd "$(dirname "$0")" && pwd)
 seconds=${1:-600}
 shift || true
-targets=${*:-exr_reader pipeline_toml scene_toml}
+targets=${*:-exr_reader pipeline_toml scene_toml pfm_reader}
 [ -d "$here/corpus" ] || "$here/seed.sh"
 mkdir -p "$here/logs"
 cd "$here"

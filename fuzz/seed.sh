@@ -3,7 +3,7 @@
 set -eu
 here=$(cd "$(dirname "$0")" && pwd)
 root=$(dirname "$here")
-mkdir -p "$here/corpus/exr_reader" "$here/corpus/pipeline_toml" "$here/corpus/scene_toml"
+mkdir -p "$here/corpus/exr_reader" "$here/corpus/pipeline_toml" "$here/corpus/scene_toml" "$here/corpus/pfm_reader"
 # The small EXRs of the 1-spp sets (large files slow every execution down).
 for f in "$root"/fixtures/*/spp1/*.exr; do
     if [ "$(wc -c < "$f")" -le 16384 ]; then
@@ -20,4 +20,11 @@ printf '%s\0pyramid.levels=3\0pyramid.level1.gsid.sigma=0.5' "$(cat "$root/pipel
 for f in "$root"/fixtures/scenes/*.toml; do
     cp "$f" "$here/corpus/scene_toml/$(basename "$f")"
 done
-echo "seeded: $(ls "$here/corpus/exr_reader" | wc -l) EXR, $(ls "$here/corpus/pipeline_toml" | wc -l) pipeline, $(ls "$here/corpus/scene_toml" | wc -l) scene inputs"
+# Small hand-built PFMs (octal escapes: POSIX printf has no \x): RGB and grey, either byte order,
+# a scale that is not 1, odd whitespace, a denormal, a NaN and -0.0 among the samples.
+pfm=$here/corpus/pfm_reader
+printf 'PF\n2 1\n-1.0\n\000\000\200\077\000\000\000\100\000\000\100\100\001\000\000\000\000\000\300\177\000\000\000\200' > "$pfm/rgb-le"
+printf 'Pf\n1 2\n1.0\n\077\200\000\000\000\000\000\001' > "$pfm/grey-be"
+printf 'Pf \t3\r\n1\n-2.5 \000\000\200\077\000\000\200\277\377\377\177\177' > "$pfm/grey-scaled"
+printf 'PF\n1 1\n4\n\100\000\000\000\000\000\000\000\177\200\000\000' > "$pfm/rgb-be"
+echo "seeded: $(ls "$here/corpus/exr_reader" | wc -l) EXR, $(ls "$here/corpus/pipeline_toml" | wc -l) pipeline, $(ls "$here/corpus/scene_toml" | wc -l) scene, $(ls "$pfm" | wc -l) PFM inputs"

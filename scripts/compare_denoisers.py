@@ -10,22 +10,35 @@ denoises the noisy colour with
   * BM3D (PyPI `bm3d`, `bm3d.bm3d_rgb`), a Gaussian-noise denoiser, on a display-range view of the
     colour (see "BM3D" below);
   * gsid's named pipelines (`--pipelines`, default `fast balanced quality full`; a name that
-    `gsid pipelines` does not list is skipped with a note),
+    `gsid pipelines` does not list is skipped with a note), on colour + albedo + normal + depth only,
+    the buffers most renderers write (a temporary folder links just those four files, so a
+    `variance.exr` or material/shadow buffer in the fixture is not used); with `--noise-buffers`
+    each pipeline also runs with `variance.exr`, `color_a.exr` and `color_b.exr` added where the set
+    has them (rows labelled `NAME`+var),
 
 and scores every output, plus the noisy input, with the repository's own metric
 (`target/release/gsid eval IMAGE.exr --reference REF.exr --json`: SSIM on the clipped sRGB view,
 relMSE on linear HDR, docs/ALGORITHM.md §5), so all methods are judged by identical code. OIDN and BM3D
 outputs are written as float32 EXR to a temporary folder first. The result is a markdown table on
-stdout (progress goes to stderr); `--json PATH` also writes every row and the run's header as JSON.
+stdout (progress goes to stderr), then a summary table: mean SSIM and mean relMSE over the fixtures
+per sample count and method, with each method's gap to OIDN (ΔSSIM, relMSE ratio); `--json PATH`
+also writes every row and the run's header as JSON.
+
+`cycles-studio` (a Blender Cycles multilayer render, not a default fixture: `--fixtures
+...,cycles-studio`) is read from ../shared/fixtures/cycles-studio/spp<N>.exr when that folder exists,
+else from fixtures/cycles-studio/ (only spp4 is bundled). gsid reads the multilayer file directly;
+OIDN gets its `Combined`, `Denoising Albedo` and `Denoising Normal` passes, extracted here, and the
+noisy input and the reference are scored by their `Combined`.
 
 Install and run, from the repository root (Python 3.11):
 
     pip install -r scripts/requirements-compare.txt && python3 scripts/compare_denoisers.py
     python3 scripts/compare_denoisers.py --fixtures mitsuba-cornell --spp 1,4,16,64 --pipelines sid gsid full
 
-Options: --fixtures a,b (default: mitsuba-cornell,cornell,caustics,textured,detail), --spp 1,4
-(default 4), --pipelines NAME..., --runs N (timed runs of OIDN and gsid, default 5), --bm3d-runs N
-(default 1), --bm3d-curve srgb|reinhard, --no-build, --json PATH, --keep DIR (keep the outputs).
+Options: --fixtures a,b (default: mitsuba-cornell,cornell,caustics,textured,detail; also
+cycles-studio), --spp 1,4 (default 1,4,16,64), --pipelines NAME..., --noise-buffers, --runs N (timed
+runs of OIDN and gsid, default 5), --bm3d-runs N (default 1; 0 or --no-bm3d skips BM3D),
+--bm3d-curve srgb|reinhard, --no-build, --json PATH, --keep DIR (keep the outputs).
 
 What "seconds" means for each method, and why:
 
@@ -76,6 +89,13 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 ALL_FIXTURES = ["mitsuba-cornell", "cornell", "caustics", "textured", "detail"]
+MULTILAYER_FIXTURES = ["cycles-studio"]
+# What gsid is given by default: what most renderers write and what OIDN's comparison gets.
+GSID_BUFFERS = ("color", "albedo", "normal", "depth")
+NOISE_BUFFERS = ("variance", "color_a", "color_b")
+# Blender passes OIDN reads from a multilayer file, with their channels.
+LAYER_PASSES = {"color": ("Combined", "RGB"), "albedo": ("Denoising Albedo", "RGB"),
+                "normal": ("Denoising Normal", "XYZ")}
 DEFAULT_PIPELINES = ["fast", "balanced", "quality", "full"]
 CHANNELS = ("R", "G", "B")
 
@@ -102,6 +122,22 @@ def read_rgb(path):
         if missing:
             fail(f"{path}: no channel {','.join(missing)} (has {','.join(sorted(ch))})")
         return np.ascontiguousarray(np.stack([ch[c].pixels for c in CHANNELS], axis=-1), dtype=np.float32)
+
+
+def read_pass(path, name, channels):
+    """One pass of a Blender multilayer EXR (`ViewLayer.<name>.<channel>`) as HxWx3 float32."""
+    import numpy as np
+    import OpenEXR
+
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        ch = f.channels()
+        picked = []
+        for c in channels:
+            full = [k for k in ch if k.split(".")[-2:] == [name, c]]
+            if len(full) != 1:
+                fail(f"{path}: no single channel {name}.{c} (has {', '.join(sorted(ch))})")
+            picked.append(ch[full[0]].pixels)
+        return np.ascontiguousarray(np.stack(picked, axis=-1), dtype=np.float32)
 
 
 def write_rgb(path, image):
@@ -148,10 +184,13 @@ def oidn_check(device, what):
 
 
 def load_set(setdir):
-    color = sanitize_color(read_rgb(setdir / "color.exr"))
-    albedo = read_rgb(setdir / "albedo.exr")
-    normal = read_rgb(setdir / "normal.exr")
-    return color, albedo, normal
+    """Colour, albedo and normal of a render set folder, or of a Blender multilayer file."""
+    setdir = Path(setdir)
+    if setdir.is_file():
+        color, albedo, normal = (read_pass(setdir, *LAYER_PASSES[b]) for b in ("color", "albedo", "normal"))
+    else:
+        color, albedo, normal = (read_rgb(setdir / f"{b}.exr") for b in ("color", "albedo", "normal"))
+    return sanitize_color(color), albedo, normal
 
 
 def oidn_denoise(device, setdir, out_path, runs):
@@ -229,7 +268,7 @@ def bm3d_denoise(setdir, out_path, runs, curve):
     from skimage.restoration import estimate_sigma
 
     forward, inverse = CURVES[curve]
-    noisy = forward(sanitize_color(read_rgb(setdir / "color.exr")).astype(np.float64))
+    noisy = forward(load_set(setdir)[0].astype(np.float64))
     sigma = float(np.mean(estimate_sigma(noisy, channel_axis=-1, average_sigmas=False)))
     times = []
     for _ in range(runs):
@@ -298,19 +337,70 @@ def git_commit():
 def parse_args(argv):
     p = argparse.ArgumentParser(description="Compare gsid with Open Image Denoise and BM3D (see the file's docstring).")
     p.add_argument("--fixtures", default=",".join(ALL_FIXTURES), help="comma-separated fixture names")
-    p.add_argument("--spp", default="4", help="comma-separated sample counts (folders spp<N>)")
+    p.add_argument("--spp", default="1,4,16,64", help="comma-separated sample counts (folders spp<N>)")
     p.add_argument("--pipelines", nargs="+", default=DEFAULT_PIPELINES, help="gsid pipeline names")
     p.add_argument("--runs", type=int, default=5, help="timed runs of OIDN and gsid (median)")
-    p.add_argument("--bm3d-runs", type=int, default=1, help="timed runs of BM3D (median)")
+    p.add_argument("--bm3d-runs", type=int, default=1, help="timed runs of BM3D (median; 0 skips it)")
+    p.add_argument("--no-bm3d", action="store_true", help="skip BM3D (same as --bm3d-runs 0)")
+    p.add_argument("--noise-buffers", action="store_true",
+                   help="also run gsid with variance/color_a/color_b where the set has them (rows NAME+var)")
     p.add_argument("--bm3d-curve", choices=sorted(CURVES), default="srgb", help="tone curve BM3D runs under")
     p.add_argument("--no-build", action="store_true", help="do not run cargo build first")
     p.add_argument("--json", metavar="PATH", help="also write the rows as JSON")
     p.add_argument("--keep", metavar="DIR", help="keep the denoised images in DIR")
     p.add_argument("--oidn-once", nargs=2, metavar=("SETDIR", "OUT"), help=argparse.SUPPRESS)
     args = p.parse_args(argv)
-    if args.runs < 1 or args.bm3d_runs < 1:
-        fail("--runs and --bm3d-runs must be at least 1")
+    if args.runs < 1 or args.bm3d_runs < 0:
+        fail("--runs must be at least 1 and --bm3d-runs at least 0")
+    if args.no_bm3d:
+        args.bm3d_runs = 0
     return args
+
+
+def linked_set(setdir, names, into):
+    """A folder `into` with links to just the buffers `names` of `setdir` that exist: what gsid sees."""
+    into.mkdir(parents=True, exist_ok=True)
+    for b in names:
+        src = setdir / f"{b}.exr"
+        link = into / src.name
+        if src.is_file() and not link.is_symlink():
+            link.symlink_to(src.resolve())
+    return into
+
+
+def multilayer_case(fx, spp):
+    """The multilayer file of `fx` at `spp` spp and its reference: the shared copy if present."""
+    for fdir in (ROOT.parent / "shared" / "fixtures" / fx, ROOT / "fixtures" / fx):
+        if fdir.is_dir():
+            path, ref = fdir / f"spp{spp}.exr", fdir / "reference.exr"
+            if not path.is_file():
+                fail(f"fixture {fx!r} at {spp} spp: no {path}")
+            if not ref.is_file():
+                fail(f"fixture {fx!r}: no reference {ref}")
+            return path, ref
+    fail(f"fixture {fx!r}: no folder {ROOT / 'fixtures' / fx}")
+
+
+def summary(rows, spps):
+    """Mean SSIM and relMSE over the fixtures per spp and method, and each method's gap to OIDN."""
+    lines = ["| spp | method | fixtures | mean SSIM | mean relMSE | ΔSSIM to OIDN | relMSE / OIDN's |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    for spp in spps:
+        at = [r for r in rows if r["spp"] == spp]
+        methods = list(dict.fromkeys(r["method"] for r in at))
+        means = {}
+        for m in methods:
+            rs = [r for r in at if r["method"] == m]
+            means[m] = (len(rs), statistics.mean(r["ssim"] for r in rs), statistics.mean(r["relmse"] for r in rs))
+        oidn = next((means[m] for m in methods if m.startswith("OIDN")), None)
+        for m in methods:
+            n, ssim, relmse = means[m]
+            if oidn and not m.startswith("OIDN") and n == oidn[0]:
+                gap = f"{ssim - oidn[1]:+.4f} | {relmse / oidn[2]:.2f}×"
+            else:
+                gap = "— | —"
+            lines.append(f"| {spp} | {m} | {n} | {ssim:.4f} | {relmse:.5f} | {gap} |")
+    return lines
 
 
 def main(argv=None):
@@ -327,9 +417,14 @@ def main(argv=None):
     fixtures = [f.strip() for f in args.fixtures.split(",") if f.strip()]
     cases = []
     for fx in fixtures:
+        if fx in MULTILAYER_FIXTURES:
+            for spp in spps:
+                path, ref = multilayer_case(fx, spp)
+                cases.append((fx, spp, path, ref))
+            continue
         fdir = ROOT / "fixtures" / fx
         if not fdir.is_dir():
-            fail(f"fixture {fx!r}: no folder {fdir} (known: {', '.join(ALL_FIXTURES)})")
+            fail(f"fixture {fx!r}: no folder {fdir} (known: {', '.join(ALL_FIXTURES + MULTILAYER_FIXTURES)})")
         ref = fdir / "reference.exr"
         if not ref.is_file():
             fail(f"fixture {fx!r}: no reference {ref}")
@@ -342,7 +437,8 @@ def main(argv=None):
     try:
         import numpy as np
         import OpenEXR  # noqa: F401
-        import bm3d  # noqa: F401
+        if args.bm3d_runs:
+            import bm3d  # noqa: F401
         import pyoidn
         import skimage  # noqa: F401
     except ImportError as e:
@@ -382,7 +478,7 @@ def main(argv=None):
         "oidn": f"{oidn_version // 10000}.{oidn_version // 100 % 100}.{oidn_version % 100}",
         "oidn_threads": oidn_threads,
         "pyoidn": pkg_version("pyoidn"),
-        "bm3d": pkg_version("bm3d"),
+        "bm3d": pkg_version("bm3d") if args.bm3d_runs else None,
         "numpy": np.__version__,
         "python": sys.version.split()[0],
         "gsid_commit": git_commit(),
@@ -409,7 +505,19 @@ def main(argv=None):
     for fx, spp, setdir, ref in cases:
         note(f"{fx} spp{spp}:")
         stem = outdir / f"{fx}-spp{spp}"
-        add(fx, spp, "input (noisy)", setdir / "color.exr", ref)
+        if setdir.is_file():
+            # Scored by their Combined pass: `gsid eval` reads a plain RGB file.
+            noisy, plain_ref = Path(f"{stem}-input.exr"), Path(f"{stem}-reference.exr")
+            write_rgb(noisy, read_pass(setdir, *LAYER_PASSES["color"]))
+            write_rgb(plain_ref, read_pass(ref, *LAYER_PASSES["color"]))
+            ref = plain_ref
+            inputs = {"": setdir}
+        else:
+            noisy = setdir / "color.exr"
+            inputs = {"": linked_set(setdir, GSID_BUFFERS, Path(f"{stem}-set"))}
+            if args.noise_buffers and any((setdir / f"{b}.exr").is_file() for b in NOISE_BUFFERS):
+                inputs["+var"] = linked_set(setdir, GSID_BUFFERS + NOISE_BUFFERS, Path(f"{stem}-set-var"))
+        add(fx, spp, "input (noisy)", noisy, ref)
 
         out = Path(f"{stem}-oidn.exr")
         secs, times = oidn_denoise(device, setdir, out, args.runs)
@@ -424,14 +532,16 @@ def main(argv=None):
         add(fx, spp, "OIDN (RT, hdr, albedo+normal)", out, ref, secs, statistics.median(ptimes),
             times=times, process_times=ptimes)
 
-        out = Path(f"{stem}-bm3d.exr")
-        secs, sigma, times = bm3d_denoise(setdir, out, args.bm3d_runs, args.bm3d_curve)
-        add(fx, spp, f"BM3D (σ̂ {sigma:.3f}, {args.bm3d_curve})", out, ref, secs, times=times, sigma=sigma)
+        if args.bm3d_runs:
+            out = Path(f"{stem}-bm3d.exr")
+            secs, sigma, times = bm3d_denoise(setdir, out, args.bm3d_runs, args.bm3d_curve)
+            add(fx, spp, f"BM3D ({args.bm3d_curve})", out, ref, secs, times=times, sigma=sigma)
 
         for p in pipelines:
-            out = Path(f"{stem}-gsid-{p}.exr")
-            secs, times = gsid_denoise(gsid, setdir, p, out, args.runs)
-            add(fx, spp, f"gsid `{p}`", out, ref, secs, secs, times=times)
+            for suffix, gsid_input in inputs.items():
+                out = Path(f"{stem}-gsid-{p}{suffix}.exr")
+                secs, times = gsid_denoise(gsid, gsid_input, p, out, args.runs)
+                add(fx, spp, f"gsid `{p}`{suffix}", out, ref, secs, secs, times=times)
 
     device.release()
     header["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
@@ -441,7 +551,8 @@ def main(argv=None):
 
     print(f"{header['cpu']}, {header['cores']} cores; load average {header['load_average_start'][0]:.2f} "
           f"at start, {header['load_average_end'][0]:.2f} at end. OIDN {header['oidn']} (pyoidn "
-          f"{header['pyoidn']}, {oidn_threads} threads), bm3d {header['bm3d']}, gsid {header['gsid_commit']}.")
+          f"{header['pyoidn']}, {oidn_threads} threads), bm3d {header['bm3d'] or 'not run'}, "
+          f"gsid {header['gsid_commit']}.")
     if skipped:
         print(f"Skipped gsid pipelines (not listed by `gsid pipelines`): {', '.join(skipped)}.")
     print()
@@ -451,15 +562,22 @@ def main(argv=None):
         print(f"| {r['fixture']} | {r['spp']} | {r['method']} | {r['ssim']:.4f} | {r['relmse']:.5f} | "
               f"{fmt(r['seconds'], '.3f')} | {fmt(r['process_seconds'], '.2f')} |")
     print()
+    print()
+    print("Means over the fixtures (gsid on colour + albedo + normal + depth; `+var` adds the noise buffers):")
+    print()
+    print("\n".join(summary(rows, spps)))
+    print()
+    bm3d_note = f" BM3D: the bm3d_rgb call only, median of {args.bm3d_runs}." if args.bm3d_runs else ""
     print(f"¹ OIDN: oidnExecuteFilter only, device and filter created and committed beforehand, median of "
-          f"{args.runs}. BM3D: the bm3d_rgb call only, median of {args.bm3d_runs}. gsid: wall time of the whole "
+          f"{args.runs}.{bm3d_note} gsid: wall time of the whole "
           f"`gsid denoise SET --pipeline NAME -o OUT.exr --quiet` process (EXR reading and writing included), "
           f"median of {args.runs}.")
     print(f"² Whole process of a one-shot denoise, median of {args.runs}: for OIDN a fresh python3 that imports "
           f"pyoidn, reads color/albedo/normal, creates device and filter, runs once and writes the EXR; for gsid "
           f"the same figure as ¹. Scores: `gsid eval --json` against fixtures/NAME/reference.exr (SSIM on the "
-          f"clipped sRGB view, relMSE on linear HDR). BM3D: σ̂ estimated from the noisy image "
-          f"(skimage estimate_sigma, channel mean) under the {args.bm3d_curve} curve.")
+          f"clipped sRGB view, relMSE on linear HDR)."
+          + (f" BM3D: σ̂ estimated from the noisy image (skimage estimate_sigma, channel mean) under the "
+             f"{args.bm3d_curve} curve (its σ̂ is in the JSON)." if args.bm3d_runs else ""))
 
     if args.json:
         Path(args.json).write_text(json.dumps({"header": header, "rows": rows}, indent=1) + "\n")

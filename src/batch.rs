@@ -213,6 +213,7 @@ impl Batch {
             .dir
             .as_ref()
             .or(args.inputs.color.as_ref())
+            .or(args.inputs.ldr.as_ref())
             .ok_or_else(|| Error::config("--color", "is required with named inputs"))?;
         let Some(pattern) = pattern_of(color)? else {
             return Self::single(args).map(|()| None);

@@ -53,6 +53,17 @@ impl Buffers {
         (self.color.as_mut(), &mut self.features)
     }
 
+    /// The render set's noise buffers present (`variance`, `color_a`, `color_b`), for in-place
+    /// conditioning.
+    pub fn noise_mut(&mut self) -> impl Iterator<Item = (&str, &mut Image)> {
+        self.created
+            .iter_mut()
+            .filter(|(name, _)| {
+                *name == NoiseInputs::VARIANCE || NoiseInputs::HALVES.contains(&name.as_str())
+            })
+            .map(|(name, img)| (name.as_str(), img))
+    }
+
     /// Size shared by all buffers, if any are present.
     pub fn dims(&self) -> Option<(usize, usize)> {
         self.iter().next().map(|(_, img)| img.dims())

@@ -38,6 +38,8 @@ pub struct Cli {
 }
 
 #[derive(Subcommand, Debug)]
+// Parsed once per process: the size of the largest variant (denoise's named inputs) costs nothing.
+#[allow(clippy::large_enum_variant)]
 pub enum Command {
     /// Denoise a render set folder (color.exr plus optional feature buffers), a multilayer EXR, a
     /// frame sequence (`beauty.####.exr`) or a folder of render-set folders.
@@ -125,15 +127,16 @@ impl RunOptions {
 #[derive(clap::Args, Debug, Clone)]
 pub struct DenoiseArgs {
     /// Render set folder, one multilayer EXR file, a frame pattern (`shot/beauty.####.exr`, also
-    /// `%04d`, `$F4`), or a folder of render-set folders (omit with --color).
-    #[arg(required_unless_present = "color")]
+    /// `%04d`, `$F4`), or a folder of render-set folders (omit with --color or --ldr).
+    #[arg(required_unless_present_any = ["color", "ldr"])]
     pub dir: Option<PathBuf>,
     #[command(flatten)]
     pub inputs: NamedInputs,
     #[command(flatten)]
     pub run: RunOptions,
-    /// Output EXR path (written atomically; never an input file); a frame pattern for a sequence,
-    /// a folder for a folder of render sets.
+    /// Output path (written atomically; never an input file); a frame pattern for a sequence, a
+    /// folder for a folder of render sets. Its extension picks the format: .exr or .pfm (float),
+    /// .png or .jpg (8-bit preview); `-` writes EXR to stdout.
     #[arg(long, short)]
     pub output: PathBuf,
     /// Frames of a sequence: `1001-1100`, `1001-1100x2`, `1,5,9-12` (default: the files that exist).
@@ -148,20 +151,47 @@ pub struct DenoiseArgs {
     /// Print one JSON object on stdout: inputs, channel mapping, pipeline, stage times, output.
     #[arg(long)]
     pub json: bool,
-    /// Also save an intermediate buffer, e.g. `--save-buffer outlier_mask=mask.exr` (repeatable).
-    #[arg(long = "save-buffer", value_name = "NAME=FILE.exr")]
+    /// Also save an intermediate buffer, e.g. `--save-buffer outlier_mask=mask.exr` (repeatable;
+    /// formats as for -o).
+    #[arg(long = "save-buffer", value_name = "NAME=FILE")]
     pub save_buffers: Vec<String>,
+    /// Exposure of .png/.jpg previews in stops (×2^EV before clamping and the sRGB curve). Float
+    /// outputs are written as computed, so it is an error when no output is a preview.
+    #[arg(long, value_name = "EV", allow_negative_numbers = true)]
+    pub exposure: Option<f32>,
     /// Print each stage's time (and each pyramid level's) after the run.
     #[arg(long)]
     pub timings: bool,
+    /// Write the denoised colour as half floats; copied channels (alpha, layers) keep their type.
+    #[arg(long)]
+    pub half: bool,
+    /// EXR compression: none, rle, zips, zip, piz, or the lossy pxr24, b44, b44a, dwaa, dwab.
+    #[arg(long, value_name = "METHOD", default_value = "rle", value_parser = compression)]
+    pub compression: io::Compression,
+    /// Also write every other channel of the colour's EXR unchanged (a multilayer input's passes).
+    #[arg(long)]
+    pub keep_layers: bool,
+}
+
+fn compression(name: &str) -> std::result::Result<io::Compression, String> {
+    io::Compression::from_name(name).ok_or_else(|| {
+        let names: Vec<&str> = io::Compression::NAMES.iter().map(|(n, _)| *n).collect();
+        format!("expected one of {}", names.join(", "))
+    })
 }
 
 /// Buffers named one by one instead of a folder; each a file or `file.exr:Layer`.
+///
+/// `requires = "color"` is also met by `--ldr` or a colour file given first, as both conflict with
+/// `--color`; clap does not extend that to a group of the two, so there is none.
 #[derive(clap::Args, Debug, Clone)]
 pub struct NamedInputs {
     /// Colour (noisy beauty) image.
     #[arg(long, alias = "hdr", conflicts_with = "dir")]
     pub color: Option<PathBuf>,
+    /// Colour as an 8-bit sRGB PNG or JPEG (linearised; not HDR, so highlights are clipped).
+    #[arg(long, conflicts_with_all = ["dir", "color"])]
+    pub ldr: Option<PathBuf>,
     #[arg(long, alias = "alb", requires = "color")]
     pub albedo: Option<PathBuf>,
     #[arg(long, alias = "nrm", requires = "color")]
@@ -172,32 +202,48 @@ pub struct NamedInputs {
     pub material: Option<PathBuf>,
     #[arg(long, requires = "color")]
     pub shadow: Option<PathBuf>,
+    /// Variance of the pixel mean (RGB, or one channel used for all three).
+    #[arg(long, requires = "color")]
+    pub variance: Option<PathBuf>,
+    /// Colour from the first half of the samples (with --color-b, from the other half).
+    #[arg(long, requires_all = ["color", "color_b"])]
+    pub color_a: Option<PathBuf>,
+    #[arg(long, requires_all = ["color", "color_a"])]
+    pub color_b: Option<PathBuf>,
     /// Which layer of a multilayer input is a buffer, e.g. `--map albedo=ViewLayer.DiffCol` (repeatable).
     #[arg(long = "map", value_name = "BUFFER=LAYER")]
     pub maps: Vec<String>,
 }
 
 impl NamedInputs {
-    /// The buffers that can be named one by one, each with its flag's path.
-    pub fn slots(&self) -> [(&'static str, &Option<PathBuf>); 6] {
+    /// The buffers that can be named one by one, each with its flag's path (`ldr` is the colour too).
+    pub fn slots(&self) -> [(&'static str, &Option<PathBuf>); 10] {
         [
             ("color", &self.color),
+            ("ldr", &self.ldr),
             ("albedo", &self.albedo),
             ("normal", &self.normal),
             ("depth", &self.depth),
             ("material", &self.material),
             ("shadow", &self.shadow),
+            ("variance", &self.variance),
+            ("color_a", &self.color_a),
+            ("color_b", &self.color_b),
         ]
     }
 
-    pub fn slots_mut(&mut self) -> [(&'static str, &mut Option<PathBuf>); 6] {
+    pub fn slots_mut(&mut self) -> [(&'static str, &mut Option<PathBuf>); 10] {
         [
             ("color", &mut self.color),
+            ("ldr", &mut self.ldr),
             ("albedo", &mut self.albedo),
             ("normal", &mut self.normal),
             ("depth", &mut self.depth),
             ("material", &mut self.material),
             ("shadow", &mut self.shadow),
+            ("variance", &mut self.variance),
+            ("color_a", &mut self.color_a),
+            ("color_b", &mut self.color_b),
         ]
     }
 
@@ -217,7 +263,7 @@ impl NamedInputs {
             maps.push((buffer.to_string(), layer.to_string()));
         }
         // A colour file given first, beside buffers named one by one, is read as `--color FILE`.
-        let features_named = self.slots()[1..].iter().any(|(_, p)| p.is_some());
+        let features_named = self.slots()[2..].iter().any(|(_, p)| p.is_some());
         let color = match dir {
             Some(dir) if !features_named => return io::load_input(dir, &maps),
             Some(dir) if dir.is_dir() => {
@@ -227,13 +273,19 @@ impl NamedInputs {
                 ))
             }
             Some(dir) => Some(dir.to_path_buf()),
-            None => self.color.clone(),
+            None => self.color.clone().or_else(|| self.ldr.clone()),
         };
         if !maps.is_empty() {
             return Err(Error::config("--map", "applies to a multilayer file input"));
         }
+        if let Some(ldr) = self.ldr.as_deref().filter(|p| !io::is_ldr(p)) {
+            return Err(Error::file(
+                ldr,
+                "--ldr takes an 8-bit sRGB PNG or JPEG; give HDR colour with --color",
+            ));
+        }
         let named: Vec<(&'static str, PathBuf)> = std::iter::once(("color", &color))
-            .chain(self.slots().into_iter().skip(1))
+            .chain(self.slots().into_iter().skip(2))
             .filter_map(|(b, p)| p.clone().map(|p| (b, p)))
             .collect();
         io::load_named(&named)
@@ -337,10 +389,11 @@ fn same_file(a: &Path, b: &Path) -> bool {
     resolved(a) == resolved(b)
 }
 
-/// Before any work: no output may be one of the run's input files (buffers or the reference),
-/// and no two outputs may be one path (one would silently lose).
+/// Before any work: every output's extension names a format, no output may be one of the run's
+/// input files (buffers or the reference), and no two outputs may be one path (one would silently lose).
 fn check_outputs(inputs: &[(String, PathBuf)], outputs: &[&Path]) -> Result<()> {
     for (i, out) in outputs.iter().enumerate() {
+        io::ImageFormat::of_output(out)?;
         if let Some((name, _)) = inputs.iter().find(|(_, f)| same_file(f, out)) {
             return Err(Error::output(
                 out,
@@ -420,6 +473,35 @@ pub(crate) fn denoise_frame(
         .chain(saves.iter().map(|(_, p)| p.as_path()))
         .collect();
     check_outputs(&set.inputs(), &outputs)?;
+    let inputs = batch::InputJson::list(&set);
+    let mut frame = set.frame;
+    if args.keep_layers {
+        if !frame.has_layers() {
+            let (_, color) = &set.files[0];
+            return Err(Error::config(
+                "--keep-layers",
+                format!(
+                    "{} holds no channels besides the colour's; it applies to a multilayer EXR",
+                    color.display()
+                ),
+            ));
+        }
+        frame.read_layers()?;
+    }
+    let previews = outputs
+        .iter()
+        .any(|p| io::ImageFormat::of_output(p).is_ok_and(|f| f != io::ImageFormat::Exr));
+    if previews && (args.half || args.keep_layers) {
+        return Err(Error::config(
+            if args.half { "--half" } else { "--keep-layers" },
+            "applies to EXR outputs only",
+        ));
+    }
+    let encoding = io::Encoding {
+        compression: args.compression,
+        half: args.half,
+        exposure: preview_exposure(args.exposure, &outputs)?,
+    };
     // Reserve every output before the work, so an unwritable path fails fast and nothing half-written remains.
     let pending = PendingOutput::create(&args.output)?;
     let pending_saves = saves
@@ -429,10 +511,15 @@ pub(crate) fn denoise_frame(
     for line in &set.notes {
         say(line);
     }
+    if args.compression.is_lossy() && (frame.has_alpha() || args.keep_layers) {
+        say(&format!(
+            "--compression {} is lossy: the copied alpha and layers are not bit-exact",
+            args.compression.name()
+        ));
+    }
     let read_seconds = start.elapsed().as_secs_f64();
     let (width, height) = set.set.dims();
     let input = args.dir.as_ref().unwrap_or(&set.dir).display().to_string();
-    let inputs = batch::InputJson::list(&set);
     let mut buffers = Buffers::from(set.set);
     let (out, report) = pipeline.run(&mut buffers, ctx.seed, stage_progress)?;
     let write_start = Instant::now();
@@ -453,10 +540,10 @@ pub(crate) fn denoise_frame(
             )
         })?;
         let file = pending.path().display().to_string();
-        pending.write_exr(buf, io::Compression::Rle)?;
+        io::write_image(pending, buf, &frame.windows_only(), &encoding)?;
         saved.push(batch::SavedJson { buffer: name, file });
     }
-    pending.write_exr(&out, io::Compression::Rle)?;
+    io::write_image(pending, &out, &frame, &encoding)?;
     let write_seconds = write_start.elapsed().as_secs_f64();
     Ok(FrameReport {
         input,
@@ -518,6 +605,26 @@ pub(crate) fn print_json(value: &impl serde::Serialize) -> Result<()> {
     let text = serde_json::to_string(value)
         .map_err(|e| Error::Runtime(format!("cannot write JSON: {e}")))?;
     say!("{text}\n")
+}
+
+/// `--exposure` in stops (0 without it). It scales previews only, so given with none it would
+/// silently do nothing: that is an error.
+fn preview_exposure(exposure: Option<f32>, outputs: &[&Path]) -> Result<f32> {
+    let Some(ev) = exposure else {
+        return Ok(0.0);
+    };
+    if !(-32.0..=32.0).contains(&ev) {
+        return Err(Error::range("--exposure", ev, "-32 to 32 stops"));
+    }
+    for out in outputs {
+        if io::ImageFormat::of_output(out)?.is_preview() {
+            return Ok(ev);
+        }
+    }
+    Err(Error::config(
+        "--exposure",
+        "applies to .png and .jpg outputs only, and no output is one (float outputs are written as computed)",
+    ))
 }
 
 /// The reference for scoring a render set: `--reference`, else the one FORMATS.md places.
@@ -656,8 +763,8 @@ fn sweep_into(
 }
 
 fn eval(args: &EvalArgs) -> Result<()> {
-    let image = io::read_image(&args.image, 3)?;
-    let mut reference = io::read_image(&args.reference, 3)?;
+    let image = io::read_color(&args.image)?;
+    let mut reference = io::read_color(&args.reference)?;
     sanitize_reference(&mut reference);
     if image.dims() != reference.dims() {
         return Err(Error::file(

@@ -11,7 +11,7 @@ use serde::Serialize;
 
 use crate::buffers::Buffers;
 use crate::image::Image;
-use crate::render_set::{Feature, FeatureSet};
+use crate::render_set::{Feature, FeatureSet, NoiseInputs};
 
 /// How many samples or pixels sanitisation changed, per kind of fix.
 #[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
@@ -26,6 +26,9 @@ pub struct SanitizeReport {
     pub depth_background: usize,
     /// Albedo, material or shadow samples that were non-finite or outside [0, 1], clamped.
     pub feature_clamped: usize,
+    /// Variance samples that were non-finite or negative, set to 0 (the two half-sample colours
+    /// are counted with colour).
+    pub variance_invalid: usize,
 }
 
 impl SanitizeReport {
@@ -35,6 +38,7 @@ impl SanitizeReport {
             + self.normal_unknown
             + self.depth_background
             + self.feature_clamped
+            + self.variance_invalid
     }
 
     /// One line for the user, or `None` when nothing changed.
@@ -51,6 +55,7 @@ impl SanitizeReport {
                 "infinite/invalid depths → background",
             ),
             (self.feature_clamped, "feature samples clamped to [0, 1]"),
+            (self.variance_invalid, "invalid variance samples → 0"),
         ]
         .iter()
         .filter(|(n, _)| *n > 0)
@@ -91,6 +96,30 @@ fn sanitize_radiance(img: &mut Image) -> (usize, usize) {
         kinds
     });
     (nonfinite, negative)
+}
+
+/// Sanitises the noise buffers in place: a variance that is NaN, ±Inf or negative says nothing, so
+/// it becomes 0; the half-sample colours are radiance like colour and are counted with it.
+pub fn sanitize_noise<'a>(
+    noise: impl Iterator<Item = (&'a str, &'a mut Image)>,
+    report: &mut SanitizeReport,
+) {
+    for (name, img) in noise {
+        if name == NoiseInputs::VARIANCE {
+            let [invalid] = fix_each(img.data_mut(), |v| {
+                let bad = !(v.is_finite() && *v >= 0.0);
+                if bad {
+                    *v = 0.0;
+                }
+                [bad]
+            });
+            report.variance_invalid += invalid;
+        } else {
+            let (nonfinite, negative) = sanitize_radiance(img);
+            report.color_nonfinite += nonfinite;
+            report.color_negative += negative;
+        }
+    }
 }
 
 /// Sanitises a reference image as input colour is sanitised, so a score never meets a NaN.
@@ -218,10 +247,20 @@ impl Conditioning {
     pub fn apply(buffers: &mut Buffers) -> Conditioning {
         let (color, features) = buffers.inputs_mut();
         let mut color = color;
-        let sanitized = sanitize(color.as_deref_mut(), features);
+        let mut sanitized = sanitize(color.as_deref_mut(), features);
         let scale = color.as_deref().map_or(1.0, exposure_scale);
         if let Some(img) = color {
             scale_image(img, scale);
+        }
+        sanitize_noise(buffers.noise_mut(), &mut sanitized);
+        // The noise stays on the colour's scale: the halves scale with it, a variance with its square.
+        for (name, img) in buffers.noise_mut() {
+            let factor = if name == NoiseInputs::VARIANCE {
+                scale * scale
+            } else {
+                scale
+            };
+            scale_image(img, factor);
         }
         Conditioning { sanitized, scale }
     }
@@ -279,5 +318,53 @@ mod tests {
         );
         assert_eq!(b.get("depth").unwrap().data(), &[6.0, 3.0]);
         assert!(r.summary().unwrap().contains("2 non-finite colour"));
+    }
+
+    #[test]
+    fn invalid_variance_becomes_zero_and_halves_are_sanitised_like_colour() {
+        let mut b = Buffers::new();
+        b.insert("color", Image::new(2, 1, 3)).unwrap();
+        let variance = vec![f32::NAN, -1.0, 0.5, f32::INFINITY, 0.0, f32::NEG_INFINITY];
+        b.insert("variance", Image::from_vec(2, 1, 3, variance).unwrap())
+            .unwrap();
+        let half = vec![f32::NAN, -1.0, 0.5, 1.0, 1.0, 1.0];
+        b.insert("color_a", Image::from_vec(2, 1, 3, half).unwrap())
+            .unwrap();
+        b.insert("color_b", Image::new(2, 1, 3)).unwrap();
+        let c = Conditioning::apply(&mut b);
+        assert_eq!(c.sanitized.variance_invalid, 4);
+        assert_eq!(
+            (c.sanitized.color_nonfinite, c.sanitized.color_negative),
+            (1, 1)
+        );
+        assert_eq!(
+            b.get("variance").unwrap().data(),
+            &[0.0, 0.0, 0.5, 0.0, 0.0, 0.0]
+        );
+        assert_eq!(
+            b.get("color_a").unwrap().data(),
+            &[0.0, 0.0, 0.5, 1.0, 1.0, 1.0]
+        );
+        assert!(c
+            .sanitized
+            .summary()
+            .unwrap()
+            .contains("4 invalid variance samples → 0"));
+    }
+
+    #[test]
+    fn noise_buffers_follow_the_brightness_scale() {
+        let mut b = Buffers::new();
+        b.insert("color", Image::from_fn(4, 4, 3, |_, _, _| 10.0))
+            .unwrap();
+        b.insert("variance", Image::from_fn(4, 4, 3, |_, _, _| 4.0))
+            .unwrap();
+        b.insert("color_a", Image::from_fn(4, 4, 3, |_, _, _| 10.0))
+            .unwrap();
+        let c = Conditioning::apply(&mut b);
+        assert!(c.scale < 1.0);
+        let s = c.scale;
+        assert_eq!(b.get("color_a").unwrap().data()[0], 10.0 * s);
+        assert_eq!(b.get("variance").unwrap().data()[0], 4.0 * (s * s));
     }
 }

@@ -50,6 +50,7 @@ pub mod features;
 pub mod image;
 pub mod io;
 pub mod metrics;
+pub mod noise;
 pub mod outlier;
 pub mod pipeline;
 pub mod progress;

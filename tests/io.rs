@@ -310,3 +310,142 @@ proptest! {
         }
     }
 }
+
+/// A 4×2 render set folder with colour and the named extra buffers (RGB unless one channel).
+fn noise_set(dir: &Path, extra: &[(&str, Image)]) {
+    std::fs::create_dir_all(dir).unwrap();
+    let color = Image::from_fn(4, 2, 3, |x, y, c| (x + y + c) as f32 * 0.1);
+    io::write_exr(&dir.join("color.exr"), &color).unwrap();
+    for (name, img) in extra {
+        io::write_exr(&dir.join(format!("{name}.exr")), img).unwrap();
+    }
+}
+
+fn rgb(v: f32) -> Image {
+    Image::from_fn(4, 2, 3, |x, _, c| v + (x + c) as f32)
+}
+
+#[test]
+fn a_folders_variance_and_halves_are_loaded_into_the_noise_inputs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("set");
+    noise_set(
+        &dir,
+        &[
+            ("variance", rgb(0.5)),
+            ("color_a", rgb(1.0)),
+            ("color_b", rgb(2.0)),
+        ],
+    );
+    let loaded = io::load_render_set(&dir).unwrap();
+    let noise = &loaded.set.noise;
+    assert_eq!(noise.variance.as_ref().unwrap().data(), rgb(0.5).data());
+    let [a, b] = noise.halves.as_ref().unwrap();
+    assert_eq!((a.data(), b.data()), (rgb(1.0).data(), rgb(2.0).data()));
+    let names: Vec<&str> = loaded.files.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(names, ["color", "variance", "color_a", "color_b"]);
+    // Optional buffers: the missing-buffers note lists features only.
+    let missing = loaded
+        .notes
+        .iter()
+        .find(|n| n.starts_with("missing"))
+        .unwrap();
+    assert!(!missing.contains("variance") && !missing.contains("color_a"));
+
+    // Named inputs give the same buffers.
+    let named = io::load_named(&[
+        ("color", dir.join("color.exr")),
+        ("variance", dir.join("variance.exr")),
+        ("color_a", dir.join("color_a.exr")),
+        ("color_b", dir.join("color_b.exr")),
+    ])
+    .unwrap();
+    assert_eq!(
+        named.set.noise.variance.as_ref().unwrap().data(),
+        rgb(0.5).data()
+    );
+    let [a, b] = named.set.noise.halves.as_ref().unwrap();
+    assert_eq!((a.data(), b.data()), (rgb(1.0).data(), rgb(2.0).data()));
+}
+
+#[test]
+fn a_one_channel_variance_is_used_for_all_three_with_a_note() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("set");
+    let y = Image::from_fn(4, 2, 1, |x, y, _| (x + 4 * y) as f32);
+    noise_set(&dir, &[("variance", y.clone())]);
+    let loaded = io::load_render_set(&dir).unwrap();
+    let v = loaded.set.noise.variance.as_ref().unwrap();
+    assert_eq!(v.channels(), 3);
+    for p in 0..8 {
+        assert_eq!(v.pixel(p), &[y.data()[p]; 3]);
+    }
+    assert!(loaded.set.noise.halves.is_none());
+    assert!(
+        loaded
+            .notes
+            .iter()
+            .any(|n| n.contains("one-channel variance")),
+        "{:?}",
+        loaded.notes
+    );
+}
+
+#[test]
+fn one_half_alone_or_a_wrong_size_is_an_error_naming_the_buffer() {
+    let tmp = tempfile::tempdir().unwrap();
+    for (have, missing) in [("color_a", "color_b"), ("color_b", "color_a")] {
+        let dir = tmp.path().join(have);
+        noise_set(&dir, &[(have, rgb(1.0))]);
+        let e = io::load_render_set(&dir).err().unwrap();
+        assert_eq!(e.exit_code(), 2);
+        assert!(
+            e.to_string().contains(&format!("{missing}.exr: not found")),
+            "{e} does not name {missing} as the missing one"
+        );
+        let e = io::load_named(&[
+            ("color", dir.join("color.exr")),
+            (have, dir.join(format!("{have}.exr"))),
+        ])
+        .err()
+        .unwrap();
+        assert_eq!(e.exit_code(), 2);
+        let flag = |b: &str| format!("--{}", b.replace('_', "-"));
+        assert!(
+            e.to_string().starts_with(&format!(
+                "{}: is required with {}",
+                flag(missing),
+                flag(have)
+            )),
+            "{e} does not name {missing} as the missing one"
+        );
+    }
+    let dir = tmp.path().join("small");
+    noise_set(&dir, &[("variance", Image::new(2, 2, 3))]);
+    let e = io::load_render_set(&dir).err().unwrap();
+    assert!(e.to_string().contains("variance.exr") && e.to_string().contains("2x2"));
+}
+
+#[test]
+fn a_multilayer_variance_pass_is_loaded() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("render.exr");
+    let plane = |v: f32| FlatSamples::F32(vec![v; 6]);
+    write_channels(
+        &path,
+        3,
+        2,
+        vec![
+            ("ViewLayer.Combined.R", plane(1.0)),
+            ("ViewLayer.Combined.G", plane(1.0)),
+            ("ViewLayer.Combined.B", plane(1.0)),
+            ("ViewLayer.Denoising Variance.R", plane(0.25)),
+            ("ViewLayer.Denoising Variance.G", plane(0.5)),
+            ("ViewLayer.Denoising Variance.B", plane(0.75)),
+        ],
+    );
+    let loaded = io::load_input(&path, &[]).unwrap();
+    let v = loaded.set.noise.variance.as_ref().unwrap();
+    assert_eq!(v.pixel(5), &[0.25, 0.5, 0.75]);
+    assert!(loaded.notes[0].contains("variance ← ViewLayer.Denoising Variance"));
+}

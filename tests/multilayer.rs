@@ -6,8 +6,8 @@ use std::path::Path;
 
 use common::{assert_bad_input, gsid, stderr};
 use exr::prelude::{
-    read_all_flat_layers_from_file, AnyChannel, AnyChannels, FlatSamples, Image as ExrImage,
-    SmallVec, WritableImage,
+    read_all_flat_layers_from_file, AnyChannel, AnyChannels, Encoding, FlatSamples,
+    Image as ExrImage, Layer as ExrLayer, SmallVec, WritableImage,
 };
 use gsid::{io, Image};
 
@@ -37,6 +37,35 @@ fn channels_of(path: &str, names: &[&str]) -> Image {
     Image::from_vec(w, h, names.len(), data).unwrap()
 }
 
+/// Writes the Cycles fixture's `Combined` as a plain RGBA file with the fixture's header
+/// attributes and alpha as stored: all an output keeps of it.
+fn cycles_color(path: &Path) {
+    let mut file = read_all_flat_layers_from_file(CYCLES).expect("read fixture");
+    let layer = file.layer_data.remove(0);
+    let list: SmallVec<[AnyChannel<FlatSamples>; 4]> = layer
+        .channel_data
+        .list
+        .into_iter()
+        .filter_map(|c| {
+            let name = c.name.to_string();
+            let short = name.strip_prefix("ViewLayer.Combined.")?.to_string();
+            Some(AnyChannel {
+                name: short.as_str().into(),
+                ..c
+            })
+        })
+        .collect();
+    let rgba = ExrLayer::new(
+        layer.size,
+        layer.attributes,
+        Encoding::FAST_LOSSLESS,
+        AnyChannels::sort(list),
+    );
+    let mut image = ExrImage::from_layer(rgba);
+    image.attributes = file.attributes;
+    image.write().to_file(path).unwrap();
+}
+
 /// Writes the Cycles fixture's colour, albedo, normal (and depth, if asked) as a render-set folder.
 fn cycles_folder(dir: &Path, depth: bool) {
     let pass = |p: &str, cs: &[&str]| {
@@ -44,7 +73,7 @@ fn cycles_folder(dir: &Path, depth: bool) {
         let names: Vec<&str> = names.iter().map(String::as_str).collect();
         channels_of(CYCLES, &names)
     };
-    io::write_exr(&dir.join("color.exr"), &pass("Combined", &["R", "G", "B"])).unwrap();
+    cycles_color(&dir.join("color.exr"));
     io::write_exr(
         &dir.join("albedo.exr"),
         &pass("Denoising Albedo", &["R", "G", "B"]),
@@ -154,7 +183,19 @@ fn blender_ao_pass_is_not_taken_for_colour() {
     );
     let folder = tmp.path().join("set");
     std::fs::create_dir(&folder).unwrap();
-    let color = Image::from_fn(16, 16, 3, |x, y, _| ramp(y * 16 + x));
+    // The alpha passes through, so the folder's colour has it too.
+    let color = Image::from_fn(
+        16,
+        16,
+        4,
+        |x, y, c| {
+            if c == 3 {
+                flat(0)
+            } else {
+                ramp(y * 16 + x)
+            }
+        },
+    );
     io::write_exr(&folder.join("color.exr"), &color).unwrap();
     let from_folder = denoise(&[folder.to_str().unwrap()], &tmp.path().join("b.exr"));
     assert!(std::fs::read(tmp.path().join("a.exr")).unwrap() == from_folder);
@@ -246,4 +287,21 @@ fn oidn_names_give_the_folder_bytes() {
         layers == from_folder,
         "file.exr:Layer inputs differ from the folder"
     );
+}
+
+/// `eval` reads a Blender file's `Combined`, not its first layer (`AO` sorts before it): the
+/// score of the bundled 4 spp render against its reference is its fixture README's figure.
+#[test]
+fn eval_scores_the_colour_pass_of_multilayer_files() {
+    let out = gsid(&[
+        "eval",
+        CYCLES,
+        "--reference",
+        "fixtures/cycles-studio/reference.exr",
+        "--json",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let ssim = report["ssim"].as_f64().unwrap();
+    assert!((ssim - 0.882).abs() < 5e-4, "SSIM {ssim}");
 }

@@ -268,13 +268,22 @@ fn render_builds_its_set_aside_and_replaces_an_old_one_whole() {
     assert!(first.status.success(), "{}", stderr(&first));
     assert_eq!(
         files_in(&dest),
-        vec!["reference.exr", "scene.toml", "spp1", "spp2"]
+        vec![
+            "reference.exr",
+            "sample_variance.exr",
+            "scene.toml",
+            "spp1",
+            "spp2"
+        ]
     );
     let mode = std::fs::metadata(&dest).unwrap().permissions().mode() & 0o777;
     assert_eq!(mode & 0o700, 0o700);
     let second = render("4");
     assert!(second.status.success(), "{}", stderr(&second));
-    assert_eq!(files_in(&dest), vec!["reference.exr", "scene.toml", "spp4"]);
+    assert_eq!(
+        files_in(&dest),
+        vec!["reference.exr", "sample_variance.exr", "scene.toml", "spp4"]
+    );
     assert_eq!(
         files_in(tmp.path()),
         vec!["scene.toml", "set"],

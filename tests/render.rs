@@ -246,6 +246,16 @@ fn render_writes_the_render_set_layout() {
         .unwrap();
     assert!(status.success());
     assert!(out.join("scene.toml").is_file() && out.join("reference.exr").is_file());
+    let s2 = read_image(&out.join("sample_variance.exr"), 3).unwrap();
+    assert_eq!((s2.width(), s2.height()), (16, 8));
+    for buffer in ["variance", "color_a", "color_b"] {
+        assert!(
+            !out.join("spp1").join(format!("{buffer}.exr")).exists(),
+            "a 1-spp set has no {buffer}"
+        );
+        let img = read_image(&out.join("spp2").join(format!("{buffer}.exr")), 3).unwrap();
+        assert_eq!((img.width(), img.height()), (16, 8));
+    }
     for spp in ["spp1", "spp2"] {
         for (buffer, channels) in [
             ("color", 3),
@@ -262,6 +272,66 @@ fn render_writes_the_render_set_layout() {
     // Different sample counts use different seeds.
     assert_ne!(seed_for(0, 1, false), seed_for(0, 2, false));
     assert_ne!(seed_for(0, 4, false), seed_for(0, 4, true));
+}
+
+#[test]
+fn noise_buffers_are_the_samples_own_statistics() {
+    let s = scene("cornell");
+    let one = draw(&s, 1, 3, s.effects);
+    assert!(one.noise.variance.is_none() && one.noise.halves.is_none());
+    assert!(one.sample_variance.is_none());
+    for spp in [2, 4] {
+        let r = draw(&s, spp, 3, s.effects);
+        let variance = r.noise.variance.as_ref().unwrap();
+        let s2 = r.sample_variance.as_ref().unwrap();
+        let [a, b] = r.noise.halves.as_ref().unwrap();
+        for p in 0..r.color.data().len() {
+            let (c, a, b) = (r.color.data()[p], a.data()[p], b.data()[p]);
+            assert!(
+                ((a + b) / 2.0 - c).abs() <= 1e-6 * c.abs().max(1e-3),
+                "{spp} spp: the halves' mean {} is not the colour {c}",
+                (a + b) / 2.0
+            );
+            let v = variance.data()[p];
+            assert!(v >= 0.0 && (s2.data()[p] / spp as f32 - v).abs() <= 1e-6 * v.max(1e-9));
+            if spp == 2 {
+                // For two samples s²/N is exactly (a − b)²/4.
+                let d = (a - b) * (a - b) / 4.0;
+                assert!(
+                    (v - d).abs() <= 1e-5 * d.max(1e-9),
+                    "variance {v} against {d}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn sample_variance_over_n_is_an_n_spp_renders_noise() {
+    // s² from a many-sample render, divided by N, against the variance an N-spp render measures of
+    // itself (another seed): the two agree on the image mean. Fireflies make both heavy-tailed.
+    let s = scene("cornell");
+    let many = draw(&s, 64, 5, s.effects);
+    let four = draw(&s, 4, 6, s.effects);
+    let truth = mean(many.sample_variance.as_ref().unwrap()) / 4.0;
+    let measured = mean(four.noise.variance.as_ref().unwrap());
+    assert!(
+        (measured / truth - 1.0).abs() < 0.15,
+        "measured {measured} against s²/N {truth}"
+    );
+    // The halves' squared difference estimates the same thing: E[(a − b)²] / 4 = σ² / N.
+    let [a, b] = four.noise.halves.as_ref().unwrap();
+    let halves = a
+        .data()
+        .iter()
+        .zip(b.data())
+        .map(|(&a, &b)| ((a - b) as f64).powi(2) / 4.0)
+        .sum::<f64>()
+        / a.data().len() as f64;
+    assert!(
+        (halves / truth - 1.0).abs() < 0.15,
+        "halves {halves} against s²/N {truth}"
+    );
 }
 
 #[test]

@@ -2,23 +2,14 @@
 #![no_main]
 
 use std::io::Write;
-use std::path::PathBuf;
-use std::sync::OnceLock;
 
 use libfuzzer_sys::fuzz_target;
 
-/// One file per process, rewritten for every input: the reader takes a path, not bytes.
-fn scratch() -> &'static PathBuf {
-    static PATH: OnceLock<PathBuf> = OnceLock::new();
-    PATH.get_or_init(|| {
-        let dir = std::env::temp_dir().join(format!("gsid-fuzz-exr-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        dir.join("input.exr")
-    })
-}
+#[path = "scratch.rs"]
+mod scratch;
 
 fuzz_target!(|data: &[u8]| {
-    let path = scratch();
+    let path = scratch::file("input.exr");
     std::fs::File::create(path)
         .and_then(|mut f| f.write_all(data))
         .unwrap();

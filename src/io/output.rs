@@ -11,7 +11,7 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
-use super::{exr_file, Compression};
+use super::{exr_file, Compression, Frame};
 use crate::error::{Error, Result};
 use crate::image::Image;
 
@@ -137,23 +137,30 @@ impl PendingOutput {
         &self.path
     }
 
-    /// Writes `image` as EXR and commits it.
+    /// Writes `image` as a plain float EXR and commits it.
     pub fn write_exr(self, image: &Image, compression: Compression) -> Result<()> {
+        self.write_exr_framed(image, &Frame::default(), compression, false)
+    }
+
+    /// Writes `image` as EXR with what `frame` keeps of the input (windows, attributes, alpha,
+    /// layers read), its own channels f16 if `half`, and commits it.
+    pub fn write_exr_framed(
+        self,
+        image: &Image,
+        frame: &Frame,
+        compression: Compression,
+        half: bool,
+    ) -> Result<()> {
         let c = image.channels();
-        let names: &[&str] = match c {
-            1 => &["Y"],
-            3 => &["R", "G", "B"],
-            4 => &["R", "G", "B", "A"],
-            _ => {
-                return Err(Error::output(
-                    &self.path,
-                    format!("cannot write a {c}-channel image as EXR"),
-                ))
-            }
-        };
-        let compression = match compression {
-            Compression::Zip => exr_file::Compression::ZIP16,
-            Compression::Rle => exr_file::Compression::RLE,
+        if ![1, 3, 4].contains(&c) {
+            return Err(Error::output(
+                &self.path,
+                format!("cannot write a {c}-channel image as EXR"),
+            ));
+        }
+        let encoding = exr_file::Encoding {
+            compression: compression.exr(),
+            half,
         };
         let path = self.path.clone();
         let write_err = |e: &dyn std::fmt::Display| Error::write(&path, e);
@@ -161,14 +168,14 @@ impl PendingOutput {
             let file = tmp.as_file().try_clone().map_err(|e| write_err(&e))?;
             // Large writes: a 1 MP image is 12 MB, which 8 KiB buffers would send in 1500 calls.
             let mut writer = BufWriter::with_capacity(1 << 20, file);
-            exr_file::write(&mut writer, image, names, compression).map_err(|e| write_err(&e))?;
+            exr_file::write(&mut writer, image, frame, encoding).map_err(|e| write_err(&e))?;
             writer.flush().map_err(|e| write_err(&e))?;
             drop(writer);
             return self.commit();
         }
         // Devices, pipes and stdout cannot seek back to the offset table: build the file in memory.
         let mut bytes = std::io::Cursor::new(Vec::new());
-        exr_file::write(&mut bytes, image, names, compression).map_err(|e| write_err(&e))?;
+        exr_file::write(&mut bytes, image, frame, encoding).map_err(|e| write_err(&e))?;
         self.write_bytes(bytes.get_ref())
     }
 

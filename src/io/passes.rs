@@ -7,14 +7,21 @@
 
 use std::path::Path;
 
-use super::exr_file;
+use exr::prelude::FlatSamples;
+
+use super::exr_file::{self, Frame, Plane};
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::render_set::Feature;
 
 /// Pass names (the last dotted part of a layer's name, compared ignoring case) per buffer, most
 /// preferred first. `""` is the unprefixed `R,G,B` of a plain or Mitsuba file.
-pub const PASSES: [(&str, &[&str]); 6] = [
+///
+/// `variance` is the variance of the pixel mean, as Arnold and RenderMan variance AOVs and Cycles'
+/// old denoising data (`Denoising Variance`; 2.79: `Denoising Image Variance`) store it. Mitsuba's
+/// `moment` integrator writes a second moment (`m2_*`, in XYZ), which needs the sample count to
+/// become one, so it is not read.
+pub const PASSES: [(&str, &[&str]); 9] = [
     ("color", &["Combined", "", "beauty", "rgba"]),
     (
         "albedo",
@@ -27,10 +34,20 @@ pub const PASSES: [(&str, &[&str]); 6] = [
     ("depth", &["Denoising Depth", "Depth", "dd", "Z"]),
     ("material", &["material"]),
     ("shadow", &["shadow"]),
+    (
+        "variance",
+        &["variance", "Denoising Variance", "Denoising Image Variance"],
+    ),
+    ("color_a", &["color_a"]),
+    ("color_b", &["color_b"]),
 ];
 
-/// Passes recognised but not loaded: a variance estimate is not one of gsid's inputs.
-const RECORDED: [&str; 2] = ["variance", "Denoising Variance"];
+/// Passes recognised but not loaded: Cycles 2.79's variances of its feature passes.
+const RECORDED: [&str; 3] = [
+    "Denoising Normal Variance",
+    "Denoising Albedo Variance",
+    "Denoising Depth Variance",
+];
 
 /// Channels of one buffer, by preference: a 3-channel buffer takes R,G,B or X,Y,Z.
 const RGB: [[&str; 2]; 3] = [["R", "X"], ["G", "Y"], ["B", "Z"]];
@@ -42,13 +59,17 @@ pub struct Layers {
     width: usize,
     height: usize,
     layers: Vec<Layer>,
+    /// Each part's windows and attributes.
+    parts: Vec<Frame>,
 }
 
 struct Layer {
     /// The full prefix (`ViewLayer.Combined`), `""` for unprefixed colour channels.
     name: String,
-    /// Short channel names and their samples.
-    channels: Vec<(String, Vec<f32>)>,
+    /// The part the layer's channels are in.
+    part: usize,
+    /// Short channel names and the channels as stored.
+    channels: Vec<(String, Plane)>,
 }
 
 impl Layer {
@@ -91,13 +112,16 @@ pub struct Picked {
     pub buffer: &'static str,
     pub image: Image,
     pub source: String,
+    /// Index of its layer.
+    layer: usize,
 }
 
 impl Layers {
     pub fn read(path: &Path) -> Result<Layers> {
-        let (width, height, channels) = exr_file::read_all_channels(path)?;
+        let file = exr_file::read_all_channels(path)?;
         let mut layers: Vec<Layer> = Vec::new();
-        for (full, samples) in channels {
+        for (part, plane) in file.channels {
+            let full = plane.desc.name.to_string();
             let (prefix, short) = match full.rsplit_once('.') {
                 Some((p, s)) => (p.to_string(), s.to_string()),
                 // Unprefixed channels other than colour (Arnold's `Z`) are layers of their own.
@@ -105,18 +129,39 @@ impl Layers {
                 None => (full.clone(), full),
             };
             match layers.iter_mut().find(|l| l.name == prefix) {
-                Some(l) => l.channels.push((short, samples)),
+                Some(l) => l.channels.push((short, plane)),
                 None => layers.push(Layer {
                     name: prefix,
-                    channels: vec![(short, samples)],
+                    part,
+                    channels: vec![(short, plane)],
                 }),
             }
         }
         Ok(Layers {
-            width,
-            height,
+            width: file.width,
+            height: file.height,
             layers,
+            parts: file.parts,
         })
+    }
+
+    /// What an output keeps when `colour` is the colour: its part's windows and attributes, its
+    /// layer's `A`, and the file's other channels (there are some unless the layer is all).
+    pub fn frame(&self, path: &Path, colour: &Picked) -> Frame {
+        let layer = &self.layers[colour.layer];
+        let full = |c: usize| layer.channels[c].1.desc.name.to_string();
+        let rgb: Vec<String> = layer
+            .pick(3)
+            .unwrap_or_default()
+            .into_iter()
+            .map(full)
+            .collect();
+        let alpha = layer.find(&["A"]).map(|a| layer.channels[a].1.clone());
+        let all: usize = self.layers.iter().map(|l| l.channels.len()).sum();
+        let own = rgb.len() + alpha.is_some() as usize;
+        self.parts[layer.part]
+            .clone()
+            .of_colour(rgb, alpha, (all > own).then_some(path))
     }
 
     fn found(&self) -> String {
@@ -129,8 +174,11 @@ impl Layers {
         let n = self.width * self.height;
         let mut data = vec![0.0f32; n * channels];
         for (k, &c) in picked.iter().enumerate() {
-            for (px, &s) in data.chunks_exact_mut(channels).zip(&layer.channels[c].1) {
-                px[k] = s;
+            let pixels = data.chunks_exact_mut(channels);
+            match &layer.channels[c].1.samples {
+                FlatSamples::F16(v) => pixels.zip(v).for_each(|(px, s)| px[k] = s.to_f32()),
+                FlatSamples::F32(v) => pixels.zip(v).for_each(|(px, &s)| px[k] = s),
+                FlatSamples::U32(v) => pixels.zip(v).for_each(|(px, &s)| px[k] = s as f32),
             }
         }
         Image::from_vec(self.width, self.height, channels, data).ok()
@@ -155,17 +203,15 @@ impl Layers {
     }
 
     /// The layer `--map` or `file.exr:Layer` names: its full name, else its pass name if unique.
-    fn named(&self, path: &Path, name: &str) -> Result<&Layer> {
-        if let Some(l) = self.layers.iter().find(|l| l.name == name) {
+    fn named(&self, path: &Path, name: &str) -> Result<usize> {
+        if let Some(l) = self.layers.iter().position(|l| l.name == name) {
             return Ok(l);
         }
-        let by_pass: Vec<&Layer> = self
-            .layers
-            .iter()
-            .filter(|l| l.pass().eq_ignore_ascii_case(name))
+        let by_pass: Vec<usize> = (0..self.layers.len())
+            .filter(|&l| self.layers[l].pass().eq_ignore_ascii_case(name))
             .collect();
         match by_pass.as_slice() {
-            [one] => Ok(one),
+            [one] => Ok(*one),
             _ => Err(Error::file(
                 path,
                 format!("has no single layer `{name}`; {}", self.found()),
@@ -173,9 +219,11 @@ impl Layers {
         }
     }
 
-    /// Reads the layer `name` as a buffer of `channels` channels.
-    pub fn layer(&self, path: &Path, name: &str, channels: usize) -> Result<(Image, String)> {
-        let layer = self.named(path, name)?;
+    /// Reads the layer `name` as `buffer`.
+    pub fn layer(&self, path: &Path, name: &str, buffer: &'static str) -> Result<Picked> {
+        let channels = channels_of(buffer);
+        let index = self.named(path, name)?;
+        let layer = &self.layers[index];
         let image = self.image(layer, channels).ok_or_else(|| {
             Error::file(
                 path,
@@ -185,7 +233,12 @@ impl Layers {
                 ),
             )
         })?;
-        Ok((image, Self::source(layer, channels)))
+        Ok(Picked {
+            buffer,
+            image,
+            source: Self::source(layer, channels),
+            layer: index,
+        })
     }
 
     /// Every buffer the file holds: `maps` (`buffer=layer`) first, then the table. The colour is
@@ -195,19 +248,15 @@ impl Layers {
         for (buffer, names) in PASSES {
             let channels = channels_of(buffer);
             if let Some((_, name)) = maps.iter().find(|(b, _)| b == buffer) {
-                let (image, source) = self.layer(path, name, channels)?;
-                out.push(Picked {
-                    buffer,
-                    image,
-                    source,
-                });
+                out.push(self.layer(path, name, buffer)?);
                 continue;
             }
             let Some(matches) = names.iter().find_map(|n| {
-                let m: Vec<&Layer> = self
-                    .layers
-                    .iter()
-                    .filter(|l| l.pass().eq_ignore_ascii_case(n) && l.pick(channels).is_some())
+                let m: Vec<usize> = (0..self.layers.len())
+                    .filter(|&l| {
+                        let l = &self.layers[l];
+                        l.pass().eq_ignore_ascii_case(n) && l.pick(channels).is_some()
+                    })
                     .collect();
                 (!m.is_empty()).then_some(m)
             }) else {
@@ -231,18 +280,19 @@ impl Layers {
                     ),
                 ));
             }
-            let layer = matches[0];
+            let layer = &self.layers[matches[0]];
             let image = self.image(layer, channels).expect("picked channels");
             out.push(Picked {
                 buffer,
                 image,
                 source: Self::source(layer, channels),
+                layer: matches[0],
             });
         }
         Ok(out)
     }
 
-    /// Layers recognised as passes gsid does not load (variance), for a note.
+    /// Layers recognised as passes gsid does not load (feature variances), for a note.
     pub fn recorded(&self) -> Vec<String> {
         self.layers
             .iter()

@@ -18,6 +18,7 @@ use super::scene::Scene;
 use super::shapes::{spawn, NO_LIGHT};
 
 use crate::image::Image;
+use crate::render_set::NoiseInputs;
 
 /// One random stream per pixel, seeded from (render seed, pixel index): results do not depend on scheduling.
 pub struct Sampler(Xoshiro256PlusPlus);
@@ -259,18 +260,27 @@ pub struct RenderResult {
     pub shadow: Image,
     /// Mean distance over the pixel's samples that hit something; +inf where none did.
     pub depth: Image,
+    /// The colour's measured noise: variance of the pixel mean and the two half-sample means.
+    /// Both are `None` at 1 spp, where a variance is undefined and there are no halves.
+    pub noise: NoiseInputs,
+    /// Unbiased variance of one colour sample, s² (`None` at 1 spp): pixels are independent and
+    /// box-filtered, so s² / N is the true variance of an N-spp render's pixel mean.
+    pub sample_variance: Option<Image>,
     pub stats: Stats,
     pub seconds: f64,
 }
 
 const TILE: u32 = 16;
+/// Values per pixel in a tile: colour, albedo, normal, material (3 each), shadow, depth, then the
+/// noise: variance of the mean, sample variance, half a, half b (3 each).
+const VALUES: usize = 26;
 
 struct Tile {
     x0: u32,
     y0: u32,
     w: u32,
     h: u32,
-    /// Per pixel: colour, albedo, normal, material (3 each), shadow, depth, 1 = 14 values.
+    /// Per pixel: [`VALUES`] values.
     data: Vec<f32>,
     stats: Stats,
 }
@@ -319,12 +329,13 @@ pub fn render(
     let mut material = Image::new(wu, hu, 3);
     let mut shadow = Image::new(wu, hu, 1);
     let mut depth = Image::new(wu, hu, 1);
+    let mut noise = [(); 4].map(|_| Image::new(wu, hu, 3));
     let mut stats = Stats::default();
     for t in &tiles {
         stats.add(&t.stats);
         for ly in 0..t.h {
             for lx in 0..t.w {
-                let v = &t.data[((ly * t.w + lx) * 14) as usize..][..14];
+                let v = &t.data[(ly * t.w + lx) as usize * VALUES..][..VALUES];
                 let p = ((t.y0 + ly) * w + t.x0 + lx) as usize;
                 color.pixel_mut(p).copy_from_slice(&v[0..3]);
                 albedo.pixel_mut(p).copy_from_slice(&v[3..6]);
@@ -332,9 +343,14 @@ pub fn render(
                 material.pixel_mut(p).copy_from_slice(&v[9..12]);
                 shadow.pixel_mut(p)[0] = v[12];
                 depth.pixel_mut(p)[0] = v[13];
+                for (k, img) in noise.iter_mut().enumerate() {
+                    img.pixel_mut(p).copy_from_slice(&v[14 + 3 * k..][..3]);
+                }
             }
         }
     }
+    let [variance, sample_variance, a, b] = noise;
+    let measured = spp >= 2;
     RenderResult {
         color,
         albedo,
@@ -342,8 +358,42 @@ pub fn render(
         material,
         shadow,
         depth,
+        noise: NoiseInputs {
+            variance: measured.then_some(variance),
+            halves: measured.then_some([a, b]),
+        },
+        sample_variance: measured.then_some(sample_variance),
         stats,
         seconds,
+    }
+}
+
+/// Welford's running mean and sum of squared deviations per channel: exact 0 for constant samples
+/// (a light seen directly), where sum and sum of squares would cancel to rounding noise.
+#[derive(Default)]
+struct Moments {
+    n: u32,
+    mean: [f64; 3],
+    m2: [f64; 3],
+}
+
+impl Moments {
+    fn add(&mut self, x: [f64; 3]) {
+        self.n += 1;
+        let n = self.n as f64;
+        for ((x, mean), m2) in x.iter().zip(&mut self.mean).zip(&mut self.m2) {
+            let d = x - *mean;
+            *mean += d / n;
+            *m2 += d * (x - *mean);
+        }
+    }
+
+    /// The unbiased sample variance; 0 for fewer than two samples (the caller drops it then).
+    fn sample_variance(&self) -> [f64; 3] {
+        if self.n < 2 {
+            return [0.0; 3];
+        }
+        self.m2.map(|m| m / (self.n - 1) as f64)
     }
 }
 
@@ -358,7 +408,7 @@ fn render_tile(
     w: u32,
     h: u32,
 ) -> Tile {
-    let mut data = Vec::with_capacity((w * h * 14) as usize);
+    let mut data = Vec::with_capacity((w * h) as usize * VALUES);
     let mut stats = Stats::default();
     let width = scene.camera.width as u64;
     for y in y0..y0 + h {
@@ -366,13 +416,27 @@ fn render_tile(
             let mut rng = Sampler::for_pixel(seed, y as u64 * width + x as u64);
             let mut acc = [0.0f64; 12];
             let (mut shadow, mut depth, mut hits) = (0.0f64, 0.0f64, 0u32);
-            for _ in 0..spp {
+            let mut moments = Moments::default();
+            // Samples 0..half and half..2·half make the two independent half-sample means.
+            let half = spp / 2;
+            let mut halves = [[0.0f64; 3]; 2];
+            for i in 0..spp {
+                // Every sample is jittered uniformly inside its own pixel from the pixel's own
+                // stream, and lands in that pixel only (a box filter): pixels are independent.
                 let (jx, jy) = (rng.next_f32(), rng.next_f32());
                 let s = trace(scene, x as f32 + jx, y as f32 + jy, &mut rng, &mut stats);
                 for (k, v) in [s.color, s.albedo, s.normal, s.material].iter().enumerate() {
                     acc[3 * k] += v.x as f64;
                     acc[3 * k + 1] += v.y as f64;
                     acc[3 * k + 2] += v.z as f64;
+                }
+                let c = [s.color.x as f64, s.color.y as f64, s.color.z as f64];
+                moments.add(c);
+                if i < 2 * half {
+                    let h = &mut halves[(i >= half) as usize];
+                    for (h, c) in h.iter_mut().zip(c) {
+                        *h += c;
+                    }
                 }
                 shadow += s.shadow as f64;
                 if let Some(d) = s.depth {
@@ -388,6 +452,13 @@ fn render_tile(
             } else {
                 f32::INFINITY
             });
+            let s2 = moments.sample_variance();
+            data.extend(s2.map(|v| (v * inv) as f32));
+            data.extend(s2.map(|v| v as f32));
+            let inv_half = 1.0 / half.max(1) as f64;
+            for h in halves {
+                data.extend(h.map(|v| (v * inv_half) as f32));
+            }
         }
     }
     Tile {

@@ -6,25 +6,32 @@ use super::integrator::RenderResult;
 use crate::error::{Error, Result};
 use crate::io::{write_exr, PendingOutput};
 
-/// Writes the six buffers of `r` into `dir` (created if missing).
+/// Writes the six buffers of `r` into `dir` (created if missing), and its noise buffers
+/// (`variance`, `color_a`, `color_b`) when it has them (not at 1 spp).
 pub fn write_buffers(dir: &Path, r: &RenderResult) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| Error::output(dir, e))?;
-    for (name, img) in [
+    let buffers = [
         ("color", &r.color),
         ("albedo", &r.albedo),
         ("normal", &r.normal),
         ("material", &r.material),
         ("shadow", &r.shadow),
         ("depth", &r.depth),
-    ] {
+    ];
+    for (name, img) in buffers.into_iter().chain(r.noise.buffers()) {
         write_exr(&dir.join(format!("{name}.exr")), img)?;
     }
     Ok(())
 }
 
-/// Writes the colour of `r` as `dir/reference.exr`.
+/// Writes the colour of `r` as `dir/reference.exr`, and its per-sample colour variance as
+/// `dir/sample_variance.exr` (an N-spp set's true noise is it divided by N).
 pub fn write_reference(dir: &Path, r: &RenderResult) -> Result<()> {
-    write_exr(&dir.join("reference.exr"), &r.color)
+    write_exr(&dir.join("reference.exr"), &r.color)?;
+    match &r.sample_variance {
+        Some(s2) => write_exr(&dir.join("sample_variance.exr"), s2),
+        None => Ok(()),
+    }
 }
 
 /// Copies the scene file's text into `dir/scene.toml`.

@@ -31,6 +31,12 @@ pub struct AtrousParams {
     /// Filter colour / (albedo + 0.01) (the lighting) and multiply the albedo back after, so texture
     /// detail the albedo buffer carries is never averaged. Needs the `albedo` buffer (else ignored).
     pub demodulate: bool,
+    /// A variance buffer (a `noise` stage's output): `sigma` then follows the image's noise level.
+    pub noise: Option<String>,
+    /// The noise level at which `sigma` applies as given.
+    pub noise_ref: f32,
+    /// σ = sigma · (level / noise_ref)^noise_power.
+    pub noise_power: f32,
 }
 
 impl Default for AtrousParams {
@@ -43,6 +49,9 @@ impl Default for AtrousParams {
             exposure: 1.0,
             mask: None,
             demodulate: false,
+            noise: None,
+            noise_ref: 0.028,
+            noise_power: 1.0,
         }
     }
 }
@@ -75,7 +84,17 @@ impl AtrousParams {
                 "above 0, at most 1e6",
             ));
         }
+        self.scaling().validate()?;
         self.weights.validate()
+    }
+
+    /// How `sigma` follows the noise.
+    pub fn scaling(&self) -> super::NoiseScaling {
+        super::NoiseScaling {
+            noise: self.noise.clone(),
+            noise_ref: self.noise_ref,
+            noise_power: self.noise_power,
+        }
     }
 }
 
@@ -128,6 +147,9 @@ impl Stage for AtrousStage {
             ));
         }
         let mask = read_mask(buffers, p.mask.as_deref(), color.dims(), ctx, &self.id)?;
+        let sigma = p
+            .scaling()
+            .sigma(p.sigma, buffers, &color, p.exposure, ctx, &self.id)?;
         let albedo = if p.demodulate {
             match buffers.features().get(Feature::Albedo) {
                 Some(a) if a.dims() == color.dims() => Some(a),
@@ -181,7 +203,7 @@ impl Stage for AtrousStage {
                 .expect("buffer sizes were checked above")
                 .0
             };
-            color = atrous::pass(&color, &bands, mask.as_deref(), 1 << k, p.sigma);
+            color = atrous::pass(&color, &bands, mask.as_deref(), 1 << k, sigma);
         }
         if let Some(a) = albedo {
             for (c, &a) in color.data_mut().iter_mut().zip(a.data()) {

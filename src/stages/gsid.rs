@@ -33,6 +33,12 @@ pub struct GsidParams {
     pub exposure: f32,
     /// Optional one-channel buffer of pixels to avoid (> 0.5 = masked), e.g. `outlier_mask`.
     pub mask: Option<String>,
+    /// A variance buffer (a `noise` stage's output): `sigma` then follows the image's noise level.
+    pub noise: Option<String>,
+    /// The noise level at which `sigma` applies as given.
+    pub noise_ref: f32,
+    /// σ = sigma · (level / noise_ref)^noise_power.
+    pub noise_power: f32,
 }
 
 impl Default for GsidParams {
@@ -50,6 +56,9 @@ impl Default for GsidParams {
             tone: Tone::Reinhard,
             exposure: 1.0,
             mask: None,
+            noise: None,
+            noise_ref: 0.028,
+            noise_power: 2.0,
         }
     }
 }
@@ -102,7 +111,17 @@ impl GsidParams {
                 "above 0, at most 1e6",
             ));
         }
+        self.scaling().validate()?;
         self.weights.validate()
+    }
+
+    /// How `sigma` follows the noise.
+    pub fn scaling(&self) -> super::NoiseScaling {
+        super::NoiseScaling {
+            noise: self.noise.clone(),
+            noise_ref: self.noise_ref,
+            noise_power: self.noise_power,
+        }
     }
 
     pub fn walk_params(&self) -> WalkParams {
@@ -187,7 +206,11 @@ pub fn run_gsid(
         )
         .map(|(f, _)| f)
     };
-    let walk_params = params.walk_params();
+    let mut walk_params = params.walk_params();
+    walk_params.sigma =
+        params
+            .scaling()
+            .sigma(params.sigma, buffers, color, params.exposure, ctx, label)?;
     let progress = Progress::new(ctx.progress, label, color.height() as u64);
     let features = FeatureSource::Strips {
         build: &features_for,

@@ -5,7 +5,9 @@
 //! parsed with `deny_unknown_fields` so a misspelled key is an error that names it.
 
 pub mod atrous;
+pub mod blend;
 pub mod gsid;
+pub mod noise;
 pub mod outlier;
 pub mod pyramid;
 
@@ -13,6 +15,7 @@ use std::time::Instant;
 
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
+use crate::image::Image;
 pub use crate::spec::StageIo;
 use crate::spec::StageSpec;
 
@@ -94,7 +97,7 @@ pub trait Stage: Send + Sync {
 }
 
 /// The stage kinds gsid knows, for error messages.
-pub const KINDS: &[&str] = &["atrous", "gsid", "outlier", "pyramid"];
+pub const KINDS: &[&str] = &["atrous", "blend", "gsid", "noise", "outlier", "pyramid"];
 
 /// Builds a stage from its spec: a composite kind from its children and overrides, any other kind
 /// from its parameter table alone.
@@ -106,7 +109,9 @@ pub fn build(spec: &StageSpec) -> Result<Box<dyn Stage>> {
     let params = || spec.params.clone();
     match spec.kind.as_str() {
         "atrous" => Ok(Box::new(atrous::AtrousStage::from_table(id, io, params())?)),
+        "blend" => Ok(Box::new(blend::BlendStage::from_table(id, io, params())?)),
         "gsid" => Ok(Box::new(gsid::GsidStage::from_table(id, io, params())?)),
+        "noise" => Ok(Box::new(noise::NoiseStage::from_table(id, io, params())?)),
         "outlier" => Ok(Box::new(outlier::OutlierStage::from_table(
             id,
             io,
@@ -167,6 +172,77 @@ pub fn read_mask(
             ));
             Ok(None)
         }
+    }
+}
+
+/// How a stage's `sigma` follows the noise: σ = sigma · (level / noise_ref)^noise_power, with
+/// level the image's typical noise after the tone curve (`crate::noise::tone_level`).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct NoiseScaling {
+    /// A variance buffer (a `noise` stage's output); none: `sigma` is used as given.
+    pub noise: Option<String>,
+    /// The noise level at which `sigma` applies as given.
+    pub noise_ref: f32,
+    /// How fast σ follows the level (2: with the variance).
+    pub noise_power: f32,
+}
+
+impl Default for NoiseScaling {
+    fn default() -> Self {
+        NoiseScaling {
+            noise: None,
+            noise_ref: 0.028,
+            noise_power: 2.0,
+        }
+    }
+}
+
+impl NoiseScaling {
+    pub fn validate(&self) -> Result<()> {
+        if !(1e-6..=1e3).contains(&self.noise_ref) {
+            return Err(Error::range("noise_ref", self.noise_ref, "1e-6 to 1e3"));
+        }
+        if !(0.0..=4.0).contains(&self.noise_power) {
+            return Err(Error::range("noise_power", self.noise_power, "0 to 4"));
+        }
+        Ok(())
+    }
+
+    /// The σ to filter `color` with: `sigma` scaled by its noise level, kept inside the range
+    /// `sigma` itself is validated in; with a note of the level and the σ under `label`.
+    pub fn sigma(
+        &self,
+        sigma: f32,
+        buffers: &Buffers,
+        color: &Image,
+        exposure: f32,
+        ctx: &mut Context,
+        label: &str,
+    ) -> Result<f32> {
+        let Some(name) = self.noise.as_deref() else {
+            return Ok(sigma);
+        };
+        let variance = buffers.get_channels(name, 3)?.ok_or_else(|| {
+            Error::buffer(
+                name,
+                "is required (the stage's `noise`) but missing; a `noise` stage writes it",
+            )
+        })?;
+        if variance.dims() != color.dims() {
+            return Err(Error::buffer(
+                name,
+                "does not match the colour buffer's size",
+            ));
+        }
+        let level = crate::noise::tone_level(color, variance, exposure);
+        let factor = (level / self.noise_ref as f64).powf(self.noise_power as f64);
+        let scaled = (sigma as f64 * factor).clamp(1e-3, 1e3) as f32;
+        ctx.note(format!(
+            "{label} (level {}): noise level {level:.4} → σ {scaled:.3}",
+            ctx.level
+        ));
+        Ok(scaled)
     }
 }
 

@@ -1,0 +1,85 @@
+//! Which format an image output is written in: the one its extension names, checked before any
+//! work so a typo costs nothing.
+
+use std::path::Path;
+
+use super::preview::{self, Preview};
+use super::{output::STDOUT, pfm, Compression, Frame, PendingOutput};
+use crate::error::{Error, Result};
+use crate::image::Image;
+
+/// The formats an image output can be written in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ImageFormat {
+    /// Float EXR.
+    Exr,
+    /// Float PFM, as Open Image Denoise writes it.
+    Pfm,
+    /// 8-bit tone-mapped preview.
+    Png,
+    /// 8-bit tone-mapped preview, without alpha.
+    Jpeg,
+}
+
+/// The extensions an image output may have, for error messages.
+const KNOWN: &str = ".exr, .pfm, .png, .jpg, .jpeg";
+
+impl ImageFormat {
+    /// The format of an output path by its extension (any case). `-`, a device, a FIFO (and a
+    /// folder, which fails later as one) without a known extension are EXR, as they always were;
+    /// any other path without a known extension is an error.
+    pub fn of_output(path: &Path) -> Result<Self> {
+        let ext = super::extension(path);
+        match ext.as_str() {
+            "exr" => return Ok(ImageFormat::Exr),
+            "pfm" => return Ok(ImageFormat::Pfm),
+            "png" => return Ok(ImageFormat::Png),
+            "jpg" | "jpeg" => return Ok(ImageFormat::Jpeg),
+            _ => {}
+        }
+        if path.as_os_str() == STDOUT || std::fs::metadata(path).is_ok_and(|m| !m.is_file()) {
+            return Ok(ImageFormat::Exr);
+        }
+        let what = if ext.is_empty() {
+            "has no extension to pick its format by".to_string()
+        } else {
+            format!("has the unknown image extension .{ext}")
+        };
+        Err(Error::output(path, format!("{what} (known: {KNOWN})")))
+    }
+
+    /// An 8-bit preview, which `--exposure` applies to.
+    pub fn is_preview(self) -> bool {
+        matches!(self, ImageFormat::Png | ImageFormat::Jpeg)
+    }
+}
+
+/// How outputs are encoded beyond their format.
+#[derive(Clone, Copy, Debug)]
+pub struct Encoding {
+    pub compression: Compression,
+    /// EXR only: half-float colour channels.
+    pub half: bool,
+    /// Stops of exposure for previews (float outputs are written as computed).
+    pub exposure: f32,
+}
+
+/// Writes `image` to a reserved output in the format its path names, and commits it.
+/// An EXR output keeps what `frame` holds of the colour's file (windows, attributes, alpha, layers).
+pub fn write_image(
+    pending: PendingOutput,
+    image: &Image,
+    frame: &Frame,
+    encoding: &Encoding,
+) -> Result<()> {
+    let bytes = match ImageFormat::of_output(pending.path())? {
+        ImageFormat::Exr => {
+            return pending.write_exr_framed(image, frame, encoding.compression, encoding.half)
+        }
+        ImageFormat::Pfm => pfm::encode(image),
+        ImageFormat::Png => preview::encode(image, Preview::Png, encoding.exposure),
+        ImageFormat::Jpeg => preview::encode(image, Preview::Jpeg, encoding.exposure),
+    }
+    .map_err(|m| Error::output(pending.path(), m))?;
+    pending.write_bytes(&bytes)
+}

@@ -1,0 +1,118 @@
+//! The `blend` stage: never worse than the input where the input is good. Mixes a filtered image
+//! with the colour it came from, per pixel, by the Wiener weight of `crate::noise::keep_weights`.
+//!
+//! ```toml
+//! [[stage]]
+//! kind = "blend"
+//! input = "out"          # the filtered image
+//! original = "color"     # what it was filtered from
+//! noise = "noise"        # the original's variance (a `noise` stage's output)
+//! output = "out"
+//! ```
+
+use serde::{Deserialize, Serialize};
+
+use super::{parse_params, Context, Stage, StageIo};
+use crate::buffers::{Buffers, COLOR};
+use crate::error::{Error, Result};
+use crate::noise;
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BlendParams {
+    pub original: String,
+    pub noise: String,
+    /// How far the filter's measured change may exceed the noise before the input comes back:
+    /// slack for the error of both estimates.
+    pub tolerance: f64,
+}
+
+impl Default for BlendParams {
+    fn default() -> Self {
+        BlendParams {
+            original: COLOR.to_string(),
+            noise: "noise".to_string(),
+            tolerance: 1.5,
+        }
+    }
+}
+
+pub struct BlendStage {
+    id: String,
+    io: StageIo,
+    pub params: BlendParams,
+}
+
+impl BlendStage {
+    pub fn from_table(id: &str, io: StageIo, table: toml::Table) -> Result<Self> {
+        let params: BlendParams = parse_params(id, table)?;
+        Ok(BlendStage {
+            id: id.to_string(),
+            io,
+            params,
+        })
+    }
+}
+
+impl Stage for BlendStage {
+    fn id(&self) -> &str {
+        &self.id
+    }
+
+    fn requires(&self) -> Vec<String> {
+        vec![
+            self.io.input.clone(),
+            self.params.original.clone(),
+            self.params.noise.clone(),
+        ]
+    }
+
+    fn writes(&self) -> Vec<String> {
+        vec![self.io.output.clone()]
+    }
+
+    fn execute_impl(&self, buffers: &mut Buffers, _ctx: &mut Context) -> Result<u64> {
+        let three = |name: &str| -> Result<&crate::image::Image> {
+            let img = buffers.require(name)?;
+            if img.channels() != 3 {
+                return Err(Error::buffer(
+                    name,
+                    format!("has {} channels, expected 3", img.channels()),
+                ));
+            }
+            Ok(img)
+        };
+        let (filtered, original, variance) = (
+            three(&self.io.input)?,
+            three(&self.params.original)?,
+            three(&self.params.noise)?,
+        );
+        for (name, img) in [
+            (&self.params.original, original),
+            (&self.params.noise, variance),
+        ] {
+            if img.dims() != filtered.dims() {
+                return Err(Error::buffer(
+                    name,
+                    "does not match the filtered image's size",
+                ));
+            }
+        }
+        let keep = noise::keep_weights(
+            original,
+            filtered,
+            variance,
+            buffers.features(),
+            self.params.tolerance,
+        );
+        let mut out = filtered.par_clone();
+        for (i, px) in out.data_mut().chunks_exact_mut(3).enumerate() {
+            let o = original.pixel(i);
+            for k in 0..3 {
+                px[k] = o[k] + keep[i] * (px[k] - o[k]);
+            }
+        }
+        buffers.insert(self.io.output.clone(), out)?;
+        Ok(0)
+    }
+}
