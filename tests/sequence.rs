@@ -274,3 +274,124 @@ fn json_is_one_object_on_stdout_for_a_frame_and_for_a_sequence() {
         .contains("beauty.0003.exr"));
     assert_eq!(json["failed"], serde_json::json!(["3"]));
 }
+
+#[test]
+fn noise_buffers_take_the_frame_and_every_frame_gets_the_output_options() {
+    let tmp = tempfile::tempdir().unwrap();
+    let shot_dir = shot(tmp.path(), None);
+    let copy = |from: &str, to: String| {
+        std::fs::copy(Path::new(SRC).join(from), shot_dir.join(to)).unwrap();
+    };
+    // Frame 2 has no variance: only a per-frame path can make that frame alone fail.
+    for n in [1, 3] {
+        copy("variance.exr", format!("variance.{n:04}.exr"));
+    }
+    for n in 1..=3 {
+        copy("color_a.exr", format!("half_a.{n:04}.exr"));
+        copy("color_b.exr", format!("half_b.{n:04}.exr"));
+    }
+    let inputs = |frame: &str| {
+        ["beauty", "variance", "half_a", "half_b"].map(|name| {
+            shot_dir
+                .join(format!("{name}.{frame}.exr"))
+                .display()
+                .to_string()
+        })
+    };
+    let denoise = |frame: &str, output: &Path, extra: &[&str]| {
+        let [color, variance, a, b] = inputs(frame);
+        let mut args = vec![
+            "denoise",
+            "--color",
+            &color,
+            "--variance",
+            &variance,
+            "--color-a",
+            &a,
+            "--color-b",
+            &b,
+            "-o",
+            output.to_str().unwrap(),
+            "--half",
+            "--compression",
+            "zip",
+            "-p",
+            "gsid",
+            "-q",
+        ];
+        args.extend_from_slice(extra);
+        gsid(&args)
+    };
+    let out = tmp.path().join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    let run = denoise("####", &out.join("d.####.exr"), &["--keep-going", "--json"]);
+    assert_eq!(run.status.code(), Some(2), "{}", stderr(&run));
+    assert_eq!(files_in(&out), ["d.0001.exr", "d.0003.exr"]);
+    let json: serde_json::Value = serde_json::from_slice(&run.stdout).expect("stdout is JSON");
+    let frames = json["frames"].as_array().unwrap();
+    assert!(
+        frames[1]["error"]
+            .as_str()
+            .unwrap()
+            .contains("variance.0002.exr"),
+        "{}",
+        frames[1]
+    );
+    let loaded: Vec<(&str, &str)> = frames[2]["inputs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|i| (i["buffer"].as_str().unwrap(), i["file"].as_str().unwrap()))
+        .collect();
+    let [color, variance, a, b] = inputs("0003");
+    assert_eq!(
+        loaded,
+        [
+            ("color", color.as_str()),
+            ("variance", variance.as_str()),
+            ("color_a", a.as_str()),
+            ("color_b", b.as_str()),
+        ]
+    );
+
+    let single = tmp.path().join("single.exr");
+    let one = denoise("0003", &single, &[]);
+    assert!(one.status.success(), "{}", stderr(&one));
+    assert!(
+        std::fs::read(out.join("d.0003.exr")).unwrap() == std::fs::read(&single).unwrap(),
+        "a frame must be written as its single run writes it (--half, --compression)"
+    );
+}
+
+#[test]
+fn an_ldr_colour_takes_the_frame() {
+    let tmp = tempfile::tempdir().unwrap();
+    let shot_dir = tmp.path().join("shot");
+    std::fs::create_dir_all(&shot_dir).unwrap();
+    let preview = shot_dir.join("beauty.0001.png");
+    let made = gsid(&[
+        "denoise",
+        SRC,
+        "-o",
+        preview.to_str().unwrap(),
+        "-p",
+        "gsid",
+        "-q",
+    ]);
+    assert!(made.status.success(), "{}", stderr(&made));
+    std::fs::copy(&preview, shot_dir.join("beauty.0002.png")).unwrap();
+    let out = tmp.path().join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    let run = gsid(&[
+        "denoise",
+        "--ldr",
+        shot_dir.join("beauty.####.png").to_str().unwrap(),
+        "-o",
+        out.join("l.####.exr").to_str().unwrap(),
+        "-p",
+        "gsid",
+        "-q",
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    assert_eq!(files_in(&out), ["l.0001.exr", "l.0002.exr"]);
+}
