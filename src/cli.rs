@@ -5,12 +5,13 @@ use std::time::Instant;
 
 use clap::{Parser, Subcommand};
 
+use crate::batch::{self, Batch, FrameReport};
 use crate::buffers::Buffers;
 use crate::condition::sanitize_reference;
 use crate::error::{Error, Result};
 use crate::io::{self, PendingOutput};
 use crate::metrics;
-use crate::pipeline::{PipelineSpec, BUILTIN, DEFAULT_PIPELINE, OUTPUT_BUFFER};
+use crate::pipeline::{Pipeline, PipelineSpec, BUILTIN, DEFAULT_PIPELINE, OUTPUT_BUFFER};
 use crate::run::RunContext;
 use crate::study::table::{self, Format};
 use crate::study::{ablate, sweep};
@@ -40,7 +41,8 @@ pub struct Cli {
 // Parsed once per process: the size of the largest variant (denoise's named inputs) costs nothing.
 #[allow(clippy::large_enum_variant)]
 pub enum Command {
-    /// Denoise a render set folder (color.exr plus optional feature buffers).
+    /// Denoise a render set folder (color.exr plus optional feature buffers), a multilayer EXR, a
+    /// frame sequence (`beauty.####.exr`) or a folder of render-set folders.
     Denoise(DenoiseArgs),
     /// Score an image against a reference: SSIM, PSNR, relMSE (ALGORITHM.md §5).
     Eval(EvalArgs),
@@ -122,19 +124,33 @@ impl RunOptions {
     }
 }
 
-#[derive(clap::Args, Debug)]
+#[derive(clap::Args, Debug, Clone)]
 pub struct DenoiseArgs {
-    /// Render set folder, or one multilayer EXR file (omit with --color or --ldr).
+    /// Render set folder, one multilayer EXR file, a frame pattern (`shot/beauty.####.exr`, also
+    /// `%04d`, `$F4`), or a folder of render-set folders (omit with --color or --ldr).
     #[arg(required_unless_present_any = ["color", "ldr"])]
     pub dir: Option<PathBuf>,
     #[command(flatten)]
     pub inputs: NamedInputs,
     #[command(flatten)]
     pub run: RunOptions,
-    /// Output path (written atomically; never an input file). Its extension picks the format:
-    /// .exr or .pfm (float), .png or .jpg (8-bit preview); `-` writes EXR to stdout.
+    /// Output path (written atomically; never an input file); a frame pattern for a sequence, a
+    /// folder for a folder of render sets. Its extension picks the format: .exr or .pfm (float),
+    /// .png or .jpg (8-bit preview); `-` writes EXR to stdout.
     #[arg(long, short)]
     pub output: PathBuf,
+    /// Frames of a sequence: `1001-1100`, `1001-1100x2`, `1,5,9-12` (default: the files that exist).
+    #[arg(long)]
+    pub frames: Option<String>,
+    /// Leave a frame whose output exists as it is (a requeued render-farm task redoes nothing).
+    #[arg(long)]
+    pub skip_existing: bool,
+    /// Go on after a frame fails; exit non-zero at the end, naming the failed frames.
+    #[arg(long)]
+    pub keep_going: bool,
+    /// Print one JSON object on stdout: inputs, channel mapping, pipeline, stage times, output.
+    #[arg(long)]
+    pub json: bool,
     /// Also save an intermediate buffer, e.g. `--save-buffer outlier_mask=mask.exr` (repeatable;
     /// formats as for -o).
     #[arg(long = "save-buffer", value_name = "NAME=FILE")]
@@ -165,8 +181,10 @@ fn compression(name: &str) -> std::result::Result<io::Compression, String> {
 }
 
 /// Buffers named one by one instead of a folder; each a file or `file.exr:Layer`.
+///
+/// `requires = "color"` is also met by `--ldr` or a colour file given first, as both conflict with
+/// `--color`; clap does not extend that to a group of the two, so there is none.
 #[derive(clap::Args, Debug, Clone)]
-#[command(group(clap::ArgGroup::new("colour").args(["color", "ldr"])))]
 pub struct NamedInputs {
     /// Colour (noisy beauty) image.
     #[arg(long, alias = "hdr", conflicts_with = "dir")]
@@ -174,15 +192,15 @@ pub struct NamedInputs {
     /// Colour as an 8-bit sRGB PNG or JPEG (linearised; not HDR, so highlights are clipped).
     #[arg(long, conflicts_with_all = ["dir", "color"])]
     pub ldr: Option<PathBuf>,
-    #[arg(long, alias = "alb", requires = "colour")]
+    #[arg(long, alias = "alb", requires = "color")]
     pub albedo: Option<PathBuf>,
-    #[arg(long, alias = "nrm", requires = "colour")]
+    #[arg(long, alias = "nrm", requires = "color")]
     pub normal: Option<PathBuf>,
-    #[arg(long, requires = "colour")]
+    #[arg(long, requires = "color")]
     pub depth: Option<PathBuf>,
-    #[arg(long, requires = "colour")]
+    #[arg(long, requires = "color")]
     pub material: Option<PathBuf>,
-    #[arg(long, requires = "colour")]
+    #[arg(long, requires = "color")]
     pub shadow: Option<PathBuf>,
     /// Variance of the pixel mean (RGB, or one channel used for all three).
     #[arg(long, requires = "color")]
@@ -198,6 +216,37 @@ pub struct NamedInputs {
 }
 
 impl NamedInputs {
+    /// The buffers that can be named one by one, each with its flag's path (`ldr` is the colour too).
+    pub fn slots(&self) -> [(&'static str, &Option<PathBuf>); 10] {
+        [
+            ("color", &self.color),
+            ("ldr", &self.ldr),
+            ("albedo", &self.albedo),
+            ("normal", &self.normal),
+            ("depth", &self.depth),
+            ("material", &self.material),
+            ("shadow", &self.shadow),
+            ("variance", &self.variance),
+            ("color_a", &self.color_a),
+            ("color_b", &self.color_b),
+        ]
+    }
+
+    pub fn slots_mut(&mut self) -> [(&'static str, &mut Option<PathBuf>); 10] {
+        [
+            ("color", &mut self.color),
+            ("ldr", &mut self.ldr),
+            ("albedo", &mut self.albedo),
+            ("normal", &mut self.normal),
+            ("depth", &mut self.depth),
+            ("material", &mut self.material),
+            ("shadow", &mut self.shadow),
+            ("variance", &mut self.variance),
+            ("color_a", &mut self.color_a),
+            ("color_b", &mut self.color_b),
+        ]
+    }
+
     /// Loads the folder or multilayer file `dir`, or the buffers named one by one.
     pub fn load(&self, dir: Option<&Path>) -> Result<io::LoadedSet> {
         let mut maps = Vec::new();
@@ -213,9 +262,19 @@ impl NamedInputs {
                 })?;
             maps.push((buffer.to_string(), layer.to_string()));
         }
-        if let Some(dir) = dir {
-            return io::load_input(dir, &maps);
-        }
+        // A colour file given first, beside buffers named one by one, is read as `--color FILE`.
+        let features_named = self.slots()[2..].iter().any(|(_, p)| p.is_some());
+        let color = match dir {
+            Some(dir) if !features_named => return io::load_input(dir, &maps),
+            Some(dir) if dir.is_dir() => {
+                return Err(Error::config(
+                    "--albedo",
+                    format!("buffers named one by one (--albedo, --normal, …) need the colour as a file, not the folder {}", dir.display()),
+                ))
+            }
+            Some(dir) => Some(dir.to_path_buf()),
+            None => self.color.clone().or_else(|| self.ldr.clone()),
+        };
         if !maps.is_empty() {
             return Err(Error::config("--map", "applies to a multilayer file input"));
         }
@@ -225,20 +284,10 @@ impl NamedInputs {
                 "--ldr takes an 8-bit sRGB PNG or JPEG; give HDR colour with --color",
             ));
         }
-        let named: Vec<(&'static str, PathBuf)> = [
-            ("color", self.color.as_ref().or(self.ldr.as_ref())),
-            ("albedo", self.albedo.as_ref()),
-            ("normal", self.normal.as_ref()),
-            ("depth", self.depth.as_ref()),
-            ("material", self.material.as_ref()),
-            ("shadow", self.shadow.as_ref()),
-            ("variance", self.variance.as_ref()),
-            ("color_a", self.color_a.as_ref()),
-            ("color_b", self.color_b.as_ref()),
-        ]
-        .into_iter()
-        .filter_map(|(b, p)| p.map(|p| (b, p.clone())))
-        .collect();
+        let named: Vec<(&'static str, PathBuf)> = std::iter::once(("color", &color))
+            .chain(self.slots().into_iter().skip(2))
+            .filter_map(|(b, p)| p.clone().map(|p| (b, p)))
+            .collect();
         io::load_named(&named)
     }
 }
@@ -368,20 +417,63 @@ fn denoise(args: &DenoiseArgs, quiet: bool) -> Result<()> {
 }
 
 fn denoise_in_pool(args: &DenoiseArgs, ctx: &RunContext) -> Result<()> {
-    let start = Instant::now();
     let pipeline = args.run.spec()?.build()?;
-    let mut saves = Vec::new();
-    for s in &args.save_buffers {
-        let (name, path) = s
-            .split_once('=')
-            .ok_or_else(|| Error::config("--save-buffer", format!("`{s}` is not NAME=FILE.exr")))?;
-        saves.push((name.to_string(), PathBuf::from(path)));
+    if args.json && args.output.as_os_str() == io::STDOUT {
+        return Err(Error::config(
+            "--json",
+            "prints on standard output, where -o - writes the image",
+        ));
     }
+    if let Some(batch) = Batch::plan(args)? {
+        return batch.run(args, &pipeline, ctx);
+    }
+    let say = |line: &str| {
+        if ctx.progress {
+            eprintln!("gsid: {line}");
+        }
+    };
+    let outcome = batch::denoise_or_skip(args, &pipeline, ctx, ctx.progress, &say)?;
+    if args.json {
+        print_json(&batch::SingleJson {
+            pipeline: batch::PipelineJson::of(&pipeline),
+            seed: ctx.seed,
+            outcome,
+        })?;
+    }
+    Ok(())
+}
+
+impl DenoiseArgs {
+    /// The `--save-buffer` requests as (buffer, file).
+    pub fn saves(&self) -> Result<Vec<(String, PathBuf)>> {
+        self.save_buffers
+            .iter()
+            .map(|s| {
+                let (name, path) = s.split_once('=').ok_or_else(|| {
+                    Error::config("--save-buffer", format!("`{s}` is not NAME=FILE.exr"))
+                })?;
+                Ok((name.to_string(), PathBuf::from(path)))
+            })
+            .collect()
+    }
+}
+
+/// Denoises the one render set `args` names. `say` gets the input's notes before the work starts.
+pub(crate) fn denoise_frame(
+    args: &DenoiseArgs,
+    pipeline: &Pipeline,
+    ctx: &RunContext,
+    stage_progress: bool,
+    say: &dyn Fn(&str),
+) -> Result<FrameReport> {
+    let start = Instant::now();
+    let saves = args.saves()?;
     let set = args.inputs.load(args.dir.as_deref())?;
     let outputs: Vec<&Path> = std::iter::once(args.output.as_path())
         .chain(saves.iter().map(|(_, p)| p.as_path()))
         .collect();
     check_outputs(&set.inputs(), &outputs)?;
+    let inputs = batch::InputJson::list(&set);
     let mut frame = set.frame;
     if args.keep_layers {
         if !frame.has_layers() {
@@ -416,23 +508,22 @@ fn denoise_in_pool(args: &DenoiseArgs, ctx: &RunContext) -> Result<()> {
         .iter()
         .map(|(n, p)| Ok((n.clone(), PendingOutput::create(p)?)))
         .collect::<Result<Vec<_>>>()?;
-    if ctx.progress {
-        for line in &set.notes {
-            eprintln!("gsid: {line}");
-        }
-        if args.compression.is_lossy() && (frame.has_alpha() || args.keep_layers) {
-            eprintln!(
-                "gsid: --compression {} is lossy: the copied alpha and layers are not bit-exact",
-                args.compression.name()
-            );
-        }
+    for line in &set.notes {
+        say(line);
+    }
+    if args.compression.is_lossy() && (frame.has_alpha() || args.keep_layers) {
+        say(&format!(
+            "--compression {} is lossy: the copied alpha and layers are not bit-exact",
+            args.compression.name()
+        ));
     }
     let read_seconds = start.elapsed().as_secs_f64();
-    let (w, h) = set.set.dims();
-    let set_dir = set.dir.clone();
+    let (width, height) = set.set.dims();
+    let input = args.dir.as_ref().unwrap_or(&set.dir).display().to_string();
     let mut buffers = Buffers::from(set.set);
-    let (out, report) = pipeline.run(&mut buffers, ctx.seed, ctx.progress)?;
+    let (out, report) = pipeline.run(&mut buffers, ctx.seed, stage_progress)?;
     let write_start = Instant::now();
+    let mut saved = Vec::new();
     for (name, pending) in pending_saves {
         let buf = if name == OUTPUT_BUFFER {
             Some(&out)
@@ -448,38 +539,72 @@ fn denoise_in_pool(args: &DenoiseArgs, ctx: &RunContext) -> Result<()> {
                 ),
             )
         })?;
+        let file = pending.path().display().to_string();
         io::write_image(pending, buf, &frame.windows_only(), &encoding)?;
+        saved.push(batch::SavedJson { buffer: name, file });
     }
     io::write_image(pending, &out, &frame, &encoding)?;
     let write_seconds = write_start.elapsed().as_secs_f64();
-    if ctx.progress {
-        for line in &report.notes {
-            eprintln!("gsid: {line}");
-        }
-        if args.timings {
-            eprintln!("gsid:   {:<12}         {read_seconds:>8.4} s", "read");
-            for st in &report.stages {
-                eprintln!(
-                    "gsid:   {:<12} level {} {:>8.4} s {:>6.2} M walk steps",
-                    st.id,
-                    st.level,
-                    st.seconds,
-                    st.walk_steps as f64 / 1e6
-                );
-            }
-            eprintln!("gsid:   {:<12}         {write_seconds:>8.4} s", "write");
-        }
-        let steps = report.walk_steps();
-        eprintln!(
-            "gsid: {} ({w}x{h}) → {} in {:.3} s (pipeline {:.3} s, {:.1} M walk steps)",
-            args.dir.as_ref().unwrap_or(&set_dir).display(),
-            args.output.display(),
-            start.elapsed().as_secs_f64(),
-            report.seconds,
-            steps as f64 / 1e6
-        );
+    Ok(FrameReport {
+        input,
+        inputs,
+        width,
+        height,
+        input_notes: set.notes,
+        walk_steps: report.walk_steps(),
+        notes: report.notes,
+        stages: report.stages,
+        sanitized: report.sanitized,
+        seconds: batch::Seconds {
+            read: read_seconds,
+            pipeline: report.seconds,
+            write: write_seconds,
+            total: start.elapsed().as_secs_f64(),
+        },
+        output: args.output.display().to_string(),
+        saved,
+    })
+}
+
+/// What a denoised frame tells the user after the work: the run's notes, `--timings`, the summary.
+pub(crate) fn tell(report: &FrameReport, timings: bool, say: &dyn Fn(&str)) {
+    for line in &report.notes {
+        say(line);
     }
-    Ok(())
+    let seconds = &report.seconds;
+    if timings {
+        say(&format!("  {:<12}         {:>8.4} s", "read", seconds.read));
+        for st in &report.stages {
+            say(&format!(
+                "  {:<12} level {} {:>8.4} s {:>6.2} M walk steps",
+                st.id,
+                st.level,
+                st.seconds,
+                st.walk_steps as f64 / 1e6
+            ));
+        }
+        say(&format!(
+            "  {:<12}         {:>8.4} s",
+            "write", seconds.write
+        ));
+    }
+    say(&format!(
+        "{} ({}x{}) → {} in {:.3} s (pipeline {:.3} s, {:.1} M walk steps)",
+        report.input,
+        report.width,
+        report.height,
+        report.output,
+        seconds.total,
+        seconds.pipeline,
+        report.walk_steps as f64 / 1e6
+    ));
+}
+
+/// Prints `value` as one line of JSON on standard output.
+pub(crate) fn print_json(value: &impl serde::Serialize) -> Result<()> {
+    let text = serde_json::to_string(value)
+        .map_err(|e| Error::Runtime(format!("cannot write JSON: {e}")))?;
+    say!("{text}\n")
 }
 
 /// `--exposure` in stops (0 without it). It scales previews only, so given with none it would

@@ -23,6 +23,17 @@ pub enum Error {
     /// Standard output was closed by its reader: the run ends quietly, exit 0.
     #[error("standard output closed")]
     StdoutClosed,
+    /// One frame of a sequence or batch failed; `frame` is its number or render set's name.
+    #[error("frame {frame}: {source}")]
+    Frame { frame: String, source: Box<Error> },
+    /// Frames of a `--keep-going` run failed (each was reported as it failed).
+    #[error("{} of {total} frames failed: {}", failed.len(), failed.join(", "))]
+    Frames {
+        failed: Vec<String>,
+        total: usize,
+        /// 1 if any frame failed at run time (a retry may succeed), else 2 (bad input).
+        code: i32,
+    },
     /// Any other bad usage (e.g. mismatched image sizes given to `eval`).
     #[error("{0}")]
     Usage(String),
@@ -79,6 +90,8 @@ impl Error {
         match self {
             Error::StdoutClosed => 0,
             Error::Runtime(_) | Error::Write { .. } => 1,
+            Error::Frame { source, .. } => source.exit_code(),
+            Error::Frames { code, .. } => *code,
             _ => 2,
         }
     }

@@ -2,9 +2,46 @@
 //!
 //! See README.md for the module map; the maths is in docs/ALGORITHM.md, the formats and command
 //! forms in docs/FORMATS.md.
+//!
+//! # Calling gsid from a renderer
+//!
+//! Build a [`RenderSet`] from the frame's buffers (row-major, interleaved `f32`, row 0 at the top),
+//! pick a named pipeline, run it with a seed, and take the denoised colour back. Depend on the
+//! crate with `default-features = false` to leave out the command line's dependencies (`cli`).
+//!
+//! ```
+//! use gsid::{Buffers, Feature, Image, PipelineSpec, RenderSet};
+//!
+//! # fn main() -> gsid::Result<()> {
+//! let (w, h) = (32, 24);
+//! // What the renderer wrote: noisy colour, albedo and shading normals.
+//! let noisy: Vec<f32> = (0..w * h * 3)
+//!     .map(|i| 0.2 + 0.1 * ((i * 7919 % 13) as f32 / 13.0))
+//!     .collect();
+//! let albedo = vec![0.8; w * h * 3];
+//! let normal: Vec<f32> = (0..w * h).flat_map(|_| [0.0, 0.0, 1.0]).collect();
+//!
+//! let set = RenderSet::new(Image::from_vec(w, h, 3, noisy)?)
+//!     .with(Feature::Albedo, Image::from_vec(w, h, 3, albedo)?)?
+//!     .with(Feature::Normal, Image::from_vec(w, h, 3, normal)?)?;
+//!
+//! // A pipeline compiled into the crate (`gsid pipelines` lists them); no file is read.
+//! let pipeline = PipelineSpec::builtin("full")?.build()?;
+//! // The same set, pipeline and seed give the same bits on any number of threads.
+//! let (denoised, report) = pipeline.run(&mut Buffers::from(set), 0, false)?;
+//!
+//! assert_eq!(denoised.dims(), (w, h));
+//! assert!(denoised.data().iter().all(|v| v.is_finite()));
+//! assert_eq!(report.pipeline, "full");
+//! # Ok(())
+//! # }
+//! ```
 
 pub mod atrous;
+#[cfg(feature = "cli")]
+pub mod batch;
 pub mod buffers;
+#[cfg(feature = "cli")]
 pub mod cli;
 pub mod condition;
 pub mod error;
@@ -18,16 +55,19 @@ pub mod outlier;
 pub mod pipeline;
 pub mod progress;
 pub mod pyramid;
+#[cfg(feature = "cli")]
 pub mod render;
 pub mod render_set;
 pub mod run;
 pub mod simd;
 pub mod spec;
 pub mod stages;
+#[cfg(feature = "cli")]
 pub mod study;
 pub mod walk;
 
 pub use crate::buffers::Buffers;
 pub use crate::error::{Error, Result};
 pub use crate::image::Image;
+pub use crate::pipeline::{Pipeline, PipelineSpec, RunReport};
 pub use crate::render_set::{Feature, FeatureSet, RenderSet};

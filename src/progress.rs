@@ -1,13 +1,15 @@
-//! Progress reporting: an indicatif bar on stderr when it is a terminal, nothing otherwise.
+//! Progress reporting: an indicatif bar on stderr when it is a terminal, nothing otherwise (and
+//! nothing at all without the `cli` feature, so a library build does not pull in indicatif).
 
 use std::io::IsTerminal;
 
-use indicatif::{ProgressBar, ProgressStyle};
+#[cfg(feature = "cli")]
+use indicatif::ProgressBar as Bar;
 
 /// A progress bar that may be switched off; cheap to tick from many threads.
 #[derive(Clone)]
 pub struct Progress {
-    bar: Option<ProgressBar>,
+    bar: Option<Bar>,
 }
 
 impl Progress {
@@ -16,14 +18,9 @@ impl Progress {
         if !enabled || !std::io::stderr().is_terminal() {
             return Self::hidden();
         }
-        let bar = ProgressBar::new(len);
-        let style =
-            ProgressStyle::with_template("{prefix:>12} [{bar:30}] {pos}/{len} {elapsed_precise}")
-                .unwrap_or_else(|_| ProgressStyle::default_bar())
-                .progress_chars("=> ");
-        bar.set_style(style);
-        bar.set_prefix(label.to_string());
-        Progress { bar: Some(bar) }
+        Progress {
+            bar: styled_bar(label, len),
+        }
     }
 
     pub fn hidden() -> Self {
@@ -37,9 +34,54 @@ impl Progress {
         }
     }
 
+    /// Prints a line on stderr above the bar, so the bar is not torn by it.
+    pub fn println(&self, line: &str) {
+        match &self.bar {
+            Some(b) => b.suspend(|| eprintln!("{line}")),
+            None => eprintln!("{line}"),
+        }
+    }
+
     pub fn finish(&self) {
         if let Some(b) = &self.bar {
             b.finish_and_clear();
         }
+    }
+}
+
+/// The styled bar.
+#[cfg(feature = "cli")]
+fn styled_bar(label: &str, len: u64) -> Option<Bar> {
+    use indicatif::ProgressStyle;
+    let bar = Bar::new(len);
+    let style =
+        ProgressStyle::with_template("{prefix:>12} [{bar:30}] {pos}/{len} {elapsed_precise}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> ");
+    bar.set_style(style);
+    bar.set_prefix(label.to_string());
+    Some(bar)
+}
+
+#[cfg(not(feature = "cli"))]
+fn styled_bar(_: &str, _: u64) -> Option<Bar> {
+    None
+}
+
+/// Without the `cli` feature there is no bar: a type with no values stands in for indicatif's.
+#[cfg(not(feature = "cli"))]
+#[derive(Clone)]
+enum Bar {}
+
+#[cfg(not(feature = "cli"))]
+impl Bar {
+    fn inc(&self, _: u64) {
+        match *self {}
+    }
+    fn suspend(&self, _: impl FnOnce()) {
+        match *self {}
+    }
+    fn finish_and_clear(&self) {
+        match *self {}
     }
 }

@@ -401,12 +401,18 @@ impl PipelineSpec {
             let text = std::fs::read_to_string(&local).map_err(|e| Error::file(&local, e))?;
             return Self::parse(&text, &local.display().to_string());
         }
-        match BUILTIN.iter().find(|(n, _)| *n == name_or_path) {
+        Self::builtin(name_or_path)
+    }
+
+    /// A pipeline compiled into the crate ([`BUILTIN`]), never read from disk: what a program
+    /// calling gsid in-process uses, whatever its working folder holds.
+    pub fn builtin(name: &str) -> Result<Self> {
+        match BUILTIN.iter().find(|(n, _)| *n == name) {
             Some((n, text)) => Self::parse(text, &format!("built-in pipeline {n}")),
             None => Err(Error::config(
                 "--pipeline",
                 format!(
-                    "unknown pipeline `{name_or_path}` (known: {}; or give a .toml file)",
+                    "unknown pipeline `{name}` (known: {}; or give a .toml file)",
                     BUILTIN
                         .iter()
                         .map(|(n, _)| *n)

@@ -17,7 +17,7 @@ mod preview;
 
 pub use exr_file::{Frame, Plane};
 pub use format::{write_image, Encoding, ImageFormat};
-pub use output::{remove_pending_outputs, PendingFolder, PendingOutput};
+pub use output::{remove_pending_outputs, PendingFolder, PendingOutput, STDOUT};
 
 use crate::error::{Error, Result};
 use crate::image::Image;
@@ -190,6 +190,9 @@ pub struct LoadedSet {
     pub set: RenderSet,
     /// Path of each loaded buffer, by name.
     pub files: Vec<(String, PathBuf)>,
+    /// Where each buffer's channels came from, by name: its file, `file:Layer`, or a layer's
+    /// channels (the mapping line's data).
+    pub sources: Vec<(String, String)>,
     /// The reference image path, if one was found (in the folder or one level up).
     pub reference: Option<PathBuf>,
     /// One line per thing worth telling the user (missing buffers, LDR input).
@@ -206,6 +209,7 @@ impl LoadedSet {
         dir: PathBuf,
         set: RenderSet,
         files: Vec<(String, PathBuf)>,
+        sources: Vec<(String, String)>,
         reference: Option<PathBuf>,
         mut notes: Vec<String>,
         layered: bool,
@@ -221,11 +225,18 @@ impl LoadedSet {
             dir,
             set,
             files,
+            sources,
             reference,
             notes,
             layered,
             frame: Frame::default(),
         }
+    }
+
+    /// The one line saying which channels became which buffer.
+    fn mapping_line(sources: &[(String, String)]) -> String {
+        let pairs: Vec<String> = sources.iter().map(|(b, s)| format!("{b} ← {s}")).collect();
+        pairs.join(", ")
     }
 
     /// The set with the colour's [`Frame`].
@@ -276,6 +287,11 @@ fn find_buffer_file(dir: &Path, name: &str) -> Option<PathBuf> {
         .iter()
         .map(|ext| dir.join(format!("{name}.{ext}")))
         .find(|p| p.is_file())
+}
+
+/// Whether `dir` is a render set folder (it holds a `color` file).
+pub fn is_render_set(dir: &Path) -> bool {
+    find_buffer_file(dir, "color").is_some()
 }
 
 /// Loads a render set folder: `color` is required, feature buffers are optional.
@@ -331,7 +347,20 @@ pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
     let read_file = |_: &'static str, p: &Path| Ok((read_image(p, 3)?, p.to_path_buf(), None));
     noise.load(&mut set, read_file, &color_path, &mut files, &mut notes)?;
     let reference = find_reference(dir);
-    Ok(LoadedSet::new(dir.to_path_buf(), set, files, reference, notes, false).with_frame(frame))
+    let sources = files
+        .iter()
+        .map(|(b, p)| (b.clone(), p.display().to_string()))
+        .collect();
+    Ok(LoadedSet::new(
+        dir.to_path_buf(),
+        set,
+        files,
+        sources,
+        reference,
+        notes,
+        false,
+    )
+    .with_frame(frame))
 }
 
 /// Loads a render set folder, or one multilayer or multi-part EXR file (`maps`: `buffer=layer`).
@@ -349,20 +378,20 @@ pub fn load_input(path: &Path, maps: &[(String, String)]) -> Result<LoadedSet> {
     let mut picked = layers.resolve(path, maps)?.into_iter();
     let color = picked.next().expect("colour is resolved first");
     let frame = layers.frame(path, &color);
-    let mut mapping = vec![format!("color ← {}", color.source)];
+    let mut sources = vec![("color".to_string(), color.source)];
     let mut set = RenderSet::new(color.image);
     let mut notes = Vec::new();
     let mut files = vec![("color".to_string(), path.to_path_buf())];
     let mut halves = [None, None];
     for mut p in picked {
         if let Some(k) = NoiseInputs::HALVES.iter().position(|&h| h == p.buffer) {
-            mapping.push(format!("{} ← {}", p.buffer, p.source));
+            sources.push((p.buffer.to_string(), p.source));
             files.push((p.buffer.to_string(), path.to_path_buf()));
             halves[k] = Some(p.image);
             continue;
         }
         if p.buffer == NoiseInputs::VARIANCE {
-            mapping.push(format!("{} ← {}", p.buffer, p.source));
+            sources.push((p.buffer.to_string(), p.source));
             files.push((p.buffer.to_string(), path.to_path_buf()));
             set.noise.variance = Some(p.image);
             continue;
@@ -376,7 +405,7 @@ pub fn load_input(path: &Path, maps: &[(String, String)]) -> Result<LoadedSet> {
                 p.source
             ));
         }
-        mapping.push(format!("{} ← {}", p.buffer, p.source));
+        sources.push((p.buffer.to_string(), p.source));
         set = set.with(feature, p.image)?;
         files.push((p.buffer.to_string(), path.to_path_buf()));
     }
@@ -388,14 +417,15 @@ pub fn load_input(path: &Path, maps: &[(String, String)]) -> Result<LoadedSet> {
             ),
         )
     })?;
-    notes.insert(0, format!("{}: {}", path.display(), mapping.join(", ")));
+    let mapping = LoadedSet::mapping_line(&sources);
+    notes.insert(0, format!("{}: {mapping}", path.display()));
     let recorded = layers.recorded();
     if !recorded.is_empty() {
         notes.push(format!("not used: {}", recorded.join(", ")));
     }
     let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let reference = Some(dir.join("reference.exr")).filter(|r| r.is_file() && r != path);
-    Ok(LoadedSet::new(dir, set, files, reference, notes, true).with_frame(frame))
+    Ok(LoadedSet::new(dir, set, files, sources, reference, notes, true).with_frame(frame))
 }
 
 /// Splits `file.exr:Layer` into the file and the layer; a path that exists is taken whole.
@@ -436,7 +466,7 @@ pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
         .ok_or_else(|| Error::config("--color", "is required with named inputs"))?;
     let (color, frame, color_path, shown) = read("color", &color_spec.1)?;
     let (w, h) = color.dims();
-    let mut mapping = vec![format!("color ← {shown}")];
+    let mut sources = vec![("color".to_string(), shown)];
     let mut set = RenderSet::new(color);
     let mut files = vec![("color".to_string(), color_path.clone())];
     for feature in Feature::ALL {
@@ -447,7 +477,7 @@ pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
         check_size(&img, &file, (w, h), &color_path)?;
         check_window(&window, &file, &frame, &color_path)?;
         set = set.with(feature, img)?;
-        mapping.push(format!("{} ← {shown}", feature.name()));
+        sources.push((feature.name().to_string(), shown));
         files.push((feature.name().to_string(), file));
     }
     let spec_of = |buffer: &str| {
@@ -477,13 +507,13 @@ pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
     };
     noise.load(&mut set, read_noise, &color_path, &mut files, &mut notes)?;
     for (buffer, file) in &files[before..] {
-        mapping.push(format!("{buffer} ← {}", file.display()));
+        sources.push((buffer.clone(), file.display().to_string()));
     }
-    notes.insert(0, mapping.join(", "));
+    notes.insert(0, LoadedSet::mapping_line(&sources));
     notes.extend(ldr_note(&color_path));
     let dir = color_path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let reference = find_reference(&dir);
-    Ok(LoadedSet::new(dir, set, files, reference, notes, false).with_frame(frame))
+    Ok(LoadedSet::new(dir, set, files, sources, reference, notes, false).with_frame(frame))
 }
 
 /// The two half-sample colours, which come together: both or neither, else the names of the
