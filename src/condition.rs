@@ -210,13 +210,25 @@ pub const CALIBRATED_BRIGHTNESS: (f64, f64) = (0.05, 0.25);
 /// 99th percentile, so lights and fireflies do not count) into [`CALIBRATED_BRIGHTNESS`]; 1 inside it
 /// and for black images.
 pub fn exposure_scale(color: &Image) -> f32 {
+    let mean = robust_brightness(color);
+    let (lo, hi) = CALIBRATED_BRIGHTNESS;
+    if mean <= 0.0 || mean.is_nan() || (lo..=hi).contains(&mean) {
+        1.0
+    } else {
+        (mean.clamp(lo, hi) / mean) as f32
+    }
+}
+
+/// Mean luminance of the pixels at or below the 99th percentile (lights and fireflies left out);
+/// 0 for an empty or black image. It scales with the exposure, so measures divided by it do not.
+pub fn robust_brightness(color: &Image) -> f64 {
     let mut lum: Vec<f64> = color
         .data()
         .par_chunks_exact(3)
         .map(|p| 0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64)
         .collect();
     if lum.is_empty() {
-        return 1.0;
+        return 0.0;
     }
     let k = ((lum.len() - 1) as f64 * 0.99) as usize;
     let (_, &mut p99, _) = lum.select_nth_unstable_by(k, f64::total_cmp);
@@ -225,13 +237,7 @@ pub fn exposure_scale(color: &Image) -> f32 {
         .iter()
         .filter(|&&l| l <= p99)
         .fold((0.0f64, 0usize), |(s, n), &l| (s + l, n + 1));
-    let mean = sum / kept.max(1) as f64;
-    let (lo, hi) = CALIBRATED_BRIGHTNESS;
-    if mean <= 0.0 || mean.is_nan() || (lo..=hi).contains(&mean) {
-        1.0
-    } else {
-        (mean.clamp(lo, hi) / mean) as f32
-    }
+    sum / kept.max(1) as f64
 }
 
 /// What conditioning did to a run's inputs, and what must be undone on its result.

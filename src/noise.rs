@@ -83,6 +83,25 @@ impl<'a> Surface<'a> {
         true
     }
 
+    /// Pixel i's albedo + ε per channel (1 without albedo): colour divided by it is demodulated.
+    #[inline]
+    fn scale(&self, i: usize) -> [f64; 3] {
+        match self.albedo {
+            Some(a) => std::array::from_fn(|k| (a[3 * i + k].max(0.0) + ALBEDO_EPS) as f64),
+            None => [1.0; 3],
+        }
+    }
+
+    /// A variance of pixel i's colour, demodulated.
+    fn demodulate_variance(&self, i: usize, v: impl Iterator<Item = f64>) -> [f64; 3] {
+        let s = self.scale(i);
+        let mut out = [0.0; 3];
+        for (k, v) in v.take(3).enumerate() {
+            out[k] = v / (s[k] * s[k]);
+        }
+        out
+    }
+
     /// Per-channel factor that brings pixel j's colour to pixel i's albedo.
     #[inline]
     fn remodulate(&self, i: usize, j: usize) -> [f64; 3] {
@@ -133,9 +152,17 @@ pub fn estimate(color: &Image, features: &FeatureSet) -> Image {
     let (w, h) = color.dims();
     let surface = Surface::new(features, (w, h));
     let c = color.data();
+    // Demodulated once: bringing j to i's albedo is then one factor per pixel i, applied in `smooth`.
+    let flat: Vec<[f64; 3]> = (0..w * h)
+        .into_par_iter()
+        .map(|i| {
+            let s = surface.scale(i);
+            std::array::from_fn(|k| c[3 * i + k] as f64 / s[k])
+        })
+        .collect();
     let raw: Vec<([f64; 3], usize)> = (0..w * h)
         .into_par_iter()
-        .map(|i| pair_spread(c, &surface, i, w, h))
+        .map(|i| pair_spread(&flat, &surface, i, w, h))
         .collect();
     smooth(color, &surface, &raw)
 }
@@ -152,7 +179,13 @@ const TRIMMED_CHI2_MEAN: f64 = 0.437_724_594_903_639;
 /// Raw estimate at pixel `i`: a trimmed mean of the squared differences of adjacent surface-mates
 /// in its window (brought to `i`'s albedo), which a smooth change of light barely enters; with
 /// its number of pairs kept (0: too few mates).
-fn pair_spread(c: &[f32], surface: &Surface, i: usize, w: usize, h: usize) -> ([f64; 3], usize) {
+fn pair_spread(
+    flat: &[[f64; 3]],
+    surface: &Surface,
+    i: usize,
+    w: usize,
+    h: usize,
+) -> ([f64; 3], usize) {
     let (x, y) = ((i % w) as isize, (i / w) as isize);
     let r = RAW_RADIUS;
     let inside = |nx: isize, ny: isize| {
@@ -178,7 +211,6 @@ fn pair_spread(c: &[f32], surface: &Surface, i: usize, w: usize, h: usize) -> ([
     if mates < MIN_MATES {
         return ([0.0; 3], 0);
     }
-    let value = |j: usize, m: &[f64; 3], k: usize| c[3 * j + k] as f64 * m[k];
     let mut d2 = [[0.0f64; MAX_PAIRS]; 3];
     let mut n = 0;
     for ny in y - r..=y + r {
@@ -187,15 +219,13 @@ fn pair_spread(c: &[f32], surface: &Surface, i: usize, w: usize, h: usize) -> ([
                 continue;
             }
             let j = ny as usize * w + nx as usize;
-            let mj = surface.remodulate(i, j);
             for (qx, qy) in [(nx + 1, ny), (nx, ny + 1)] {
                 if !inside(qx, qy) || !mate[slot(qx, qy)] {
                     continue;
                 }
                 let q = qy as usize * w + qx as usize;
-                let mq = surface.remodulate(i, q);
                 for (k, row) in d2.iter_mut().enumerate() {
-                    let d = value(j, &mj, k) - value(q, &mq, k);
+                    let d = flat[j][k] - flat[q][k];
                     row[n] = d * d;
                 }
                 n += 1;
@@ -206,12 +236,17 @@ fn pair_spread(c: &[f32], surface: &Surface, i: usize, w: usize, h: usize) -> ([
         return ([0.0; 3], 0);
     }
     let kept = n - ((n as f64 * TRIM) as usize);
-    let var = std::array::from_fn(|k| {
-        let row = &mut d2[k][..n];
-        row.sort_unstable_by(f64::total_cmp);
-        row[..kept].iter().sum::<f64>() / kept as f64 / (2.0 * TRIMMED_CHI2_MEAN)
-    });
+    let var =
+        std::array::from_fn(|k| trimmed_mean(&mut d2[k][..n], kept) / (2.0 * TRIMMED_CHI2_MEAN));
     (var, kept)
+}
+
+/// The mean of the `kept` smallest values (reorders `values`).
+fn trimmed_mean(values: &mut [f64], kept: usize) -> f64 {
+    if kept < values.len() {
+        values.select_nth_unstable_by(kept, f64::total_cmp);
+    }
+    values[..kept].iter().sum::<f64>() / kept as f64
 }
 
 /// Smooths a variance the renderer measured (a `variance` buffer, noisy itself at few samples)
@@ -221,7 +256,13 @@ pub fn smooth_measured(color: &Image, features: &FeatureSet, variance: &Image) -
     let raw: Vec<([f64; 3], usize)> = variance
         .data()
         .chunks_exact(3)
-        .map(|v| (std::array::from_fn(|k| clean(v[k])), 1))
+        .enumerate()
+        .map(|(i, v)| {
+            (
+                surface.demodulate_variance(i, v.iter().map(|&x| clean(x))),
+                1,
+            )
+        })
         .collect();
     smooth(color, &surface, &raw)
 }
@@ -233,12 +274,13 @@ pub fn from_halves(color: &Image, features: &FeatureSet, a: &Image, b: &Image) -
         .data()
         .chunks_exact(3)
         .zip(b.data().chunks_exact(3))
-        .map(|(p, q)| {
-            let var = std::array::from_fn(|k| {
+        .enumerate()
+        .map(|(i, (p, q))| {
+            let var = (0..3).map(|k| {
                 let d = p[k] as f64 - q[k] as f64;
                 clean((d * d / 4.0) as f32)
             });
-            (var, 1)
+            (surface.demodulate_variance(i, var), 1)
         })
         .collect();
     smooth(color, &surface, &raw)
@@ -253,7 +295,8 @@ fn clean(v: f32) -> f64 {
     }
 }
 
-/// Averages raw per-pixel estimates (variance, degrees of freedom; 0 = none) over the same surface.
+/// Averages raw per-pixel estimates (demodulated variance, degrees of freedom; 0 = none) over the
+/// same surface, and brings the result to each pixel's albedo.
 fn smooth(color: &Image, surface: &Surface, raw: &[([f64; 3], usize)]) -> Image {
     let (w, h) = color.dims();
     let c = color.data();
@@ -270,14 +313,14 @@ fn smooth(color: &Image, surface: &Surface, raw: &[([f64; 3], usize)]) -> Image 
                 if d == 0 || !surface.same(i, j) {
                     continue;
                 }
-                let m = surface.remodulate(i, j);
                 for k in 0..3 {
-                    acc[k] += d as f64 * v[k] * m[k] * m[k];
+                    acc[k] += d as f64 * v[k];
                 }
                 dof += d;
             }
             let var = if dof > 0 {
-                acc.map(|a| a / dof as f64)
+                let s = surface.scale(i);
+                std::array::from_fn(|k| acc[k] / dof as f64 * s[k] * s[k])
             } else {
                 let mut near = [0usize; 9];
                 let mut n = 0;
@@ -305,12 +348,21 @@ impl Surface<'_> {
     }
 }
 
+/// The robust brightness at which [`tone_level`] reads the noise: a unit, in the middle of what
+/// the fixtures' renderers write (their robust brightness lies in 0.07–0.17).
+const LEVEL_BRIGHTNESS: f64 = 0.1;
+
 /// The image's typical noise as the colour feature sees it: the median over pixels of the noise
 /// standard deviation (root of the mean channel variance) through the derivative of the
-/// Reinhard tone curve at the pixel, e / (1 + e·c)². One number per image (and pyramid level),
-/// so a stage's σ can follow the sample count.
+/// Reinhard tone curve at the pixel, e / (1 + e·c)², with the exposure e taken relative to the
+/// image's own robust brightness (so the level does not change with the render's exposure). One
+/// number per image (and pyramid level), so a stage's σ can follow the sample count.
 pub fn tone_level(color: &Image, variance: &Image, exposure: f32) -> f64 {
-    let e = exposure as f64;
+    let brightness = crate::condition::robust_brightness(color);
+    if !(brightness > 0.0) {
+        return 0.0;
+    }
+    let e = exposure as f64 * LEVEL_BRIGHTNESS / brightness;
     let mut levels: Vec<f64> = color
         .data()
         .par_chunks_exact(3)

@@ -329,6 +329,10 @@ fn ablate_prints_and_writes_the_table() {
         "without outlier",
         "without pyramid",
         "without atrous",
+        "without blend",
+        "fixed σ (no noise measured)",
+        "noise from the image only",
+        "without walks (à-trous alone)",
         "weight albedo = 0",
         "weight depth = 0",
         "plain SID",
@@ -336,8 +340,9 @@ fn ablate_prints_and_writes_the_table() {
         assert!(table.contains(variant), "missing {variant}: {table}");
     }
     let text = std::fs::read_to_string(&csv).unwrap();
-    // Header, then: full, three stages removed, eight weights zeroed, plain SID.
-    assert_eq!(text.lines().count(), 1 + 13, "{text}");
+    // Header, then: full, four stages removed (the noise stage is not: later stages read it), the
+    // three noise rows, eight weights zeroed, plain SID.
+    assert_eq!(text.lines().count(), 1 + 17, "{text}");
     assert!(text.starts_with("variant,ssim,psnr,relmse,seconds,delta_ssim"));
     let bad = gsid(&[
         "ablate",

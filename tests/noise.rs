@@ -1,28 +1,37 @@
 //! The noise estimate against the truth `gsid render` writes: an N-spp set's true variance of
 //! the pixel mean is `sample_variance.exr / N` (docs/FORMATS.md). Prints, per fixture and sample
 //! count, the median relative error of the estimated standard deviation (the README's table:
-//! `cargo test --release --test noise -- --nocapture`), and checks it stays in bounds.
+//! `cargo test --release --test noise -- --nocapture`), and checks it stays in bounds. The
+//! estimate is robust by design (a trimmed mean): where rare bright paths carry most of the
+//! variance (caustics) it measures the bulk of the noise and is low; that is checked too.
+//! Then hard cases of the noise-aware presets: variance buffers of zeros, NaNs and infinities, a
+//! frame half 1 spp-noisy and half converged, and the same bits on 1 and 2 threads.
 
 use std::path::Path;
 
 use gsid::render_set::Feature;
-use gsid::{io, noise};
+use gsid::{io, noise, Buffers, Image, PipelineSpec, RenderSet};
 
 const FIXTURES: [&str; 4] = ["cornell", "caustics", "textured", "detail"];
 
-/// Median over pixels of |σ̂ − σ| / σ, σ the true standard deviation (pixels with σ > 0).
-fn median_relative_error(estimate: &[f32], truth: &[f32]) -> f64 {
-    let mut errors: Vec<f64> = estimate
+/// Medians over pixels of |σ̂ − σ| / σ and of σ̂ / σ, σ the true standard deviation (pixels
+/// with σ > 0).
+fn median_errors(estimate: &[f32], truth: &[f32]) -> (f64, f64) {
+    let ratios: Vec<f64> = estimate
         .chunks_exact(3)
         .zip(truth.chunks_exact(3))
         .filter_map(|(e, t)| {
             let e = (e.iter().map(|&v| v as f64).sum::<f64>() / 3.0).sqrt();
             let t = (t.iter().map(|&v| v as f64).sum::<f64>() / 3.0).sqrt();
-            (t > 0.0).then(|| (e - t).abs() / t)
+            (t > 0.0).then(|| e / t)
         })
         .collect();
-    errors.sort_by(f64::total_cmp);
-    errors[errors.len() / 2]
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let errors = ratios.iter().map(|r| (r - 1.0).abs()).collect();
+    (median(errors), median(ratios))
 }
 
 /// The estimate from colour, albedo, normal and depth only (what most users have).
@@ -48,16 +57,102 @@ fn the_estimate_follows_the_renderers_true_noise() {
         let mut row = format!("{fixture:10}");
         for spp in [1, 4, 16, 64] {
             let (est, truth) = estimate(fixture, spp);
-            let err = median_relative_error(&est, &truth);
-            row += &format!("  {spp:>2} spp {:>5.1} %", 100.0 * err);
-            // Loose bounds that a broken estimator (signal taken for noise, a factor lost, the
-            // wrong buffer read) exceeds by far; the measured figures are in the README.
-            let bound = if spp == 1 { 0.6 } else { 0.45 };
-            if err >= bound {
-                over.push(format!("{fixture} at {spp} spp: {err:.3} ≥ {bound}"));
+            let (err, ratio) = median_errors(&est, &truth);
+            row += &format!("  {spp:>2} spp {:>5.1} % (×{ratio:.2})", 100.0 * err);
+            // Bounds that a broken estimator (signal taken for noise, a factor lost, the wrong
+            // buffer read) exceeds by far; the measured figures are in the README.
+            let ok = if fixture == "caustics" {
+                (0.1..1.0).contains(&ratio)
+            } else {
+                err < if spp == 1 { 0.45 } else { 0.3 }
+            };
+            if !ok {
+                over.push(format!(
+                    "{fixture} at {spp} spp: error {err:.3}, ratio {ratio:.3}"
+                ));
             }
         }
         println!("{row}");
     }
     assert!(over.is_empty(), "median errors out of bounds: {over:?}");
+}
+
+/// A small render set: the left half a 1 spp-like noisy wall, the right half converged, with a
+/// variance buffer `variance` (None: the estimate from the image is used).
+fn half_noisy(variance: Option<f32>) -> Buffers {
+    let (w, h) = (32, 17);
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let color = Image::from_fn(w, h, 3, |x, _, _| {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        let u = (state >> 40) as f32 / (1u64 << 24) as f32;
+        if x < w / 2 {
+            // Mostly dark samples and a few bright ones, as at 1 spp.
+            if u < 0.8 {
+                0.02 * u
+            } else {
+                4.0 * u
+            }
+        } else {
+            0.5
+        }
+    });
+    let albedo = Image::filled(w, h, 3, 0.7);
+    let normal = Image::from_fn(w, h, 3, |_, _, k| if k == 2 { 1.0 } else { 0.0 });
+    let depth = Image::filled(w, h, 1, 3.0);
+    let mut set = RenderSet::new(color)
+        .with(Feature::Albedo, albedo)
+        .unwrap()
+        .with(Feature::Normal, normal)
+        .unwrap()
+        .with(Feature::Depth, depth)
+        .unwrap();
+    set.noise.variance = variance.map(|v| Image::filled(w, h, 3, v));
+    Buffers::from(set)
+}
+
+fn run(pipeline: &str, buffers: &Buffers, threads: usize) -> Image {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap();
+    let pipeline = PipelineSpec::resolve(pipeline).unwrap().build().unwrap();
+    pool.install(|| pipeline.run(&mut buffers.clone(), 7, false).unwrap().0)
+}
+
+#[test]
+fn noise_aware_presets_stay_finite_and_deterministic_on_hard_noise() {
+    for variance in [
+        None,
+        Some(0.0),
+        Some(f32::NAN),
+        Some(f32::INFINITY),
+        Some(-1.0),
+    ] {
+        let buffers = half_noisy(variance);
+        for pipeline in ["fast", "full"] {
+            let one = run(pipeline, &buffers, 1);
+            assert!(one.all_finite(), "{pipeline} with variance {variance:?}");
+            let two = run(pipeline, &buffers, 2);
+            assert_eq!(
+                one.data(),
+                two.data(),
+                "{pipeline}: bits differ on 2 threads"
+            );
+            // The converged half stays what it is (its noise is zero or unknown-as-zero, so the
+            // blend keeps the input there; with the image estimate it measures no noise).
+            let (w, h) = one.dims();
+            for y in 2..h - 2 {
+                for x in w / 2 + 6..w - 2 {
+                    for &v in one.at(x, y) {
+                        assert!(
+                            (v - 0.5).abs() < 1e-4,
+                            "{pipeline} {variance:?} at ({x},{y}): {v}"
+                        );
+                    }
+                }
+            }
+        }
+    }
 }

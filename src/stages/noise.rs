@@ -8,6 +8,7 @@
 //! output = "noise"       # the variance buffer the later stages name
 //! source = "auto"        # auto | image | measured
 //! ```
+//! `reuse = "noise"` (optional) takes that buffer at full size instead of measuring again.
 //! `auto` uses what the renderer measured when the render set has it and `input` is the render's
 //! colour (`variance`, else the halves `color_a`/`color_b`), and estimates from the image otherwise
 //! (at coarse pyramid levels, or after another stage). `image` always estimates; `measured`
@@ -34,12 +35,16 @@ pub enum Source {
 #[serde(deny_unknown_fields, default)]
 pub struct NoiseParams {
     pub source: Source,
+    /// At full size (pyramid level 0), take this buffer when it exists instead of measuring again:
+    /// a pyramid's per-level noise stage names the top-level one's output.
+    pub reuse: Option<String>,
 }
 
 impl Default for NoiseParams {
     fn default() -> Self {
         NoiseParams {
             source: Source::Auto,
+            reuse: None,
         }
     }
 }
@@ -103,6 +108,15 @@ impl Stage for NoiseStage {
                 &self.io.input,
                 format!("has {} channels, expected 3", color.channels()),
             ));
+        }
+        if let Some(done) = self.params.reuse.as_deref().filter(|_| ctx.level == 0) {
+            if let Some(v) = buffers.get_channels(done, 3)? {
+                if v.dims() == color.dims() {
+                    let v = v.par_clone();
+                    buffers.insert(self.io.output.clone(), v)?;
+                    return Ok(0);
+                }
+            }
         }
         let own_colour = self.io.input == COLOR && ctx.level == 0;
         let measured = match self.params.source {
