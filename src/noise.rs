@@ -359,7 +359,7 @@ const LEVEL_BRIGHTNESS: f64 = 0.1;
 /// number per image (and pyramid level), so a stage's σ can follow the sample count.
 pub fn tone_level(color: &Image, variance: &Image, exposure: f32) -> f64 {
     let brightness = crate::condition::robust_brightness(color);
-    if !(brightness > 0.0) {
+    if brightness.is_nan() || brightness <= 0.0 {
         return 0.0;
     }
     let e = exposure as f64 * LEVEL_BRIGHTNESS / brightness;
