@@ -131,6 +131,12 @@ impl Buffers {
         }
     }
 
+    /// The buffer, which must exist with the expected channel count.
+    pub fn require_channels(&self, name: &str, channels: usize) -> Result<&Image> {
+        self.require(name)?;
+        Ok(self.get_channels(name, channels)?.expect("required above"))
+    }
+
     pub fn remove(&mut self, name: &str) -> Option<Image> {
         match Feature::from_name(name) {
             Some(f) => self.features.take(f),

@@ -101,17 +101,6 @@ impl<'a> Surface<'a> {
         }
         out
     }
-
-    /// Per-channel factor that brings pixel j's colour to pixel i's albedo.
-    #[inline]
-    fn remodulate(&self, i: usize, j: usize) -> [f64; 3] {
-        match self.albedo {
-            Some(a) => std::array::from_fn(|k| {
-                ((a[3 * i + k].max(0.0) + ALBEDO_EPS) / (a[3 * j + k].max(0.0) + ALBEDO_EPS)) as f64
-            }),
-            None => [1.0; 3],
-        }
-    }
 }
 
 /// Neighbours of pixel (x, y) within `radius`, inside a `w`×`h` image, in raster order.
@@ -124,16 +113,15 @@ fn window(x: usize, y: usize, w: usize, h: usize, radius: isize) -> impl Iterato
     })
 }
 
-/// Sample variance (per channel) of the colours of `members` brought to pixel `i`'s albedo, and
-/// its degrees of freedom (members − 1).
-fn spread(color: &[f32], surface: &Surface, i: usize, members: &[usize]) -> ([f64; 3], usize) {
+/// Sample variance (per channel) of the colours of `members`, and its degrees of freedom
+/// (members − 1).
+fn spread(color: &[f32], members: &[usize]) -> ([f64; 3], usize) {
     let mut n = 0usize;
     let mut sum = [0.0f64; 3];
     let mut sum2 = [0.0f64; 3];
     for &j in members {
-        let m = surface.remodulate(i, j);
         for k in 0..3 {
-            let v = color[3 * j + k] as f64 * m[k];
+            let v = color[3 * j + k] as f64;
             sum[k] += v;
             sum2[k] += v * v;
         }
@@ -328,24 +316,13 @@ fn smooth(color: &Image, surface: &Surface, raw: &[([f64; 3], usize)]) -> Image 
                     near[n] = j;
                     n += 1;
                 }
-                spread(c, &Surface::unguided(), i, &near[..n]).0
+                spread(c, &near[..n]).0
             };
             for k in 0..3 {
                 px[k] = var[k] as f32;
             }
         });
     out
-}
-
-impl Surface<'_> {
-    /// Every pixel on one surface: for pixels with no surface-mates at all.
-    fn unguided() -> Self {
-        Surface {
-            albedo: None,
-            normal: None,
-            depth: None,
-        }
-    }
 }
 
 /// The robust brightness at which [`tone_level`] reads the noise: a unit, in the middle of what
@@ -431,10 +408,8 @@ pub fn keep_weights(
                 return 0.0;
             }
             // Trimmed as the estimate is, so that where the filter removed only noise the two agree.
-            let near = &mut near[..n];
-            near.sort_unstable_by(f64::total_cmp);
             let kept = n - ((n as f64 * TRIM) as usize);
-            let err = near[..kept].iter().sum::<f64>() / kept as f64 / TRIMMED_CHI2_MEAN;
+            let err = trimmed_mean(&mut near[..n], kept) / TRIMMED_CHI2_MEAN;
             let keep = (tolerance * var / err.max(f64::MIN_POSITIVE)).min(1.0);
             // A pixel the filter made far brighter than its own noise allows took light from a
             // neighbour the features could not tell apart (an emitter beside the ceiling it lies

@@ -135,17 +135,11 @@ impl Stage for AtrousStage {
         // The stage replaces its input when it writes the same buffer (as in `full`): take it
         // instead of copying it.
         let mut color = if *input == self.io.output {
-            buffers.require(input)?;
+            buffers.require_channels(input, 3)?;
             buffers.remove(input).expect("required above")
         } else {
-            buffers.require(input)?.par_clone()
+            buffers.require_channels(input, 3)?.par_clone()
         };
-        if color.channels() != 3 {
-            return Err(Error::buffer(
-                input,
-                format!("has {} channels, expected 3", color.channels()),
-            ));
-        }
         let mask = read_mask(buffers, p.mask.as_deref(), color.dims(), ctx, &self.id)?;
         let sigma = p
             .scaling()

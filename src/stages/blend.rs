@@ -72,16 +72,7 @@ impl Stage for BlendStage {
     }
 
     fn execute_impl(&self, buffers: &mut Buffers, _ctx: &mut Context) -> Result<u64> {
-        let three = |name: &str| -> Result<&crate::image::Image> {
-            let img = buffers.require(name)?;
-            if img.channels() != 3 {
-                return Err(Error::buffer(
-                    name,
-                    format!("has {} channels, expected 3", img.channels()),
-                ));
-            }
-            Ok(img)
-        };
+        let three = |name: &str| buffers.require_channels(name, 3);
         let (filtered, original, variance) = (
             three(&self.io.input)?,
             three(&self.params.original)?,

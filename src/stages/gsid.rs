@@ -57,8 +57,8 @@ impl Default for GsidParams {
             exposure: 1.0,
             mask: None,
             noise: None,
-            noise_ref: 0.028,
-            noise_power: 2.0,
+            noise_ref: 0.04,
+            noise_power: 1.5,
         }
     }
 }
@@ -172,13 +172,7 @@ pub fn run_gsid(
     ctx: &mut Context,
     label: &str,
 ) -> Result<(crate::image::Image, u64)> {
-    let color = buffers.require(input)?;
-    if color.channels() != 3 {
-        return Err(Error::buffer(
-            input,
-            format!("has {} channels, expected 3", color.channels()),
-        ));
-    }
+    let color = buffers.require_channels(input, 3)?;
     // Which features are off does not depend on the rows: ask once, on an empty row range.
     let (_, off) = Features::build_rows(
         color,

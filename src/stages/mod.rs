@@ -180,8 +180,7 @@ const MAX_GAIN: f64 = 2.0;
 
 /// How a stage's `sigma` follows the noise: σ = sigma · (level / noise_ref)^noise_power, with
 /// level the image's typical noise after the tone curve (`crate::noise::tone_level`).
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct NoiseScaling {
     /// A variance buffer (a `noise` stage's output); none: `sigma` is used as given.
     pub noise: Option<String>,
@@ -189,16 +188,6 @@ pub struct NoiseScaling {
     pub noise_ref: f32,
     /// How fast σ follows the level (2: with the variance).
     pub noise_power: f32,
-}
-
-impl Default for NoiseScaling {
-    fn default() -> Self {
-        NoiseScaling {
-            noise: None,
-            noise_ref: 0.028,
-            noise_power: 2.0,
-        }
-    }
 }
 
 impl NoiseScaling {

@@ -102,13 +102,7 @@ impl Stage for NoiseStage {
     }
 
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
-        let color = buffers.require(&self.io.input)?;
-        if color.channels() != 3 {
-            return Err(Error::buffer(
-                &self.io.input,
-                format!("has {} channels, expected 3", color.channels()),
-            ));
-        }
+        let color = buffers.require_channels(&self.io.input, 3)?;
         if let Some(done) = self.params.reuse.as_deref().filter(|_| ctx.level == 0) {
             if let Some(v) = buffers.get_channels(done, 3)? {
                 if v.dims() == color.dims() {

@@ -146,13 +146,7 @@ impl Stage for OutlierStage {
     }
 
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
-        let color = buffers.require(&self.io.input)?;
-        if color.channels() != 3 {
-            return Err(Error::buffer(
-                &self.io.input,
-                format!("has {} channels, expected 3", color.channels()),
-            ));
-        }
+        let color = buffers.require_channels(&self.io.input, 3)?;
         let guides = Guides {
             albedo: buffers.features().get(Feature::Albedo),
             normal: buffers.features().get(Feature::Normal),
