@@ -202,21 +202,23 @@ pub fn sanitize(color: Option<&mut Image>, features: &mut FeatureSet) -> Sanitiz
     report
 }
 
-/// Robust brightness range the stages' parameters (σ, tone curve, outlier floors, the pyramid's log ε)
-/// were calibrated in: the fixtures' mean luminance below the 99th percentile lies in 0.07–0.17.
-pub const CALIBRATED_BRIGHTNESS: (f64, f64) = (0.05, 0.25);
+/// The robust brightness every render is filtered at. The tone curve, σ, the outlier floors and the
+/// pyramid's log offset all read colour on an absolute scale; bringing every render to one brightness
+/// first makes the result independent of the renderer's exposure (up to rounding). The value is a unit
+/// in the middle of what renderers write for a well-exposed frame.
+pub const UNIT_BRIGHTNESS: f64 = 0.1;
 
 /// The factor that brings `color`'s robust brightness (mean luminance of the pixels at or below the
-/// 99th percentile, so lights and fireflies do not count) into [`CALIBRATED_BRIGHTNESS`]; 1 inside it
-/// and for black images.
+/// 99th percentile, so lights and fireflies do not count) to [`UNIT_BRIGHTNESS`]; 1 for a black image.
 pub fn exposure_scale(color: &Image) -> f32 {
     let mean = robust_brightness(color);
-    let (lo, hi) = CALIBRATED_BRIGHTNESS;
-    if mean <= 0.0 || mean.is_nan() || (lo..=hi).contains(&mean) {
-        1.0
-    } else {
-        (mean.clamp(lo, hi) / mean) as f32
+    if mean.is_finite() && mean > 0.0 {
+        let scale = (UNIT_BRIGHTNESS / mean) as f32;
+        if scale.is_finite() && scale > 0.0 {
+            return scale;
+        }
     }
+    1.0
 }
 
 /// Mean luminance of the pixels at or below the 99th percentile (lights and fireflies left out);
@@ -249,7 +251,7 @@ pub struct Conditioning {
 }
 
 impl Conditioning {
-    /// Sanitises the render set's buffers and brings colour into the calibrated brightness range.
+    /// Sanitises the render set's buffers and brings colour to the unit brightness.
     pub fn apply(buffers: &mut Buffers) -> Conditioning {
         let (color, features) = buffers.inputs_mut();
         let mut color = color;
@@ -273,13 +275,7 @@ impl Conditioning {
 
     /// The user's notes for what was changed, in order.
     pub fn notes(&self) -> Vec<String> {
-        let mut notes: Vec<String> = self.sanitized.summary().into_iter().collect();
-        if self.scale != 1.0 {
-            notes.push(format!(
-                "colour is outside the calibrated brightness range; filtered at {:.3e}× and scaled back",
-                self.scale
-            ));
-        }
+        let notes: Vec<String> = self.sanitized.summary().into_iter().collect();
         notes
     }
 

@@ -325,10 +325,6 @@ fn smooth(color: &Image, surface: &Surface, raw: &[([f64; 3], usize)]) -> Image 
     out
 }
 
-/// The robust brightness at which [`tone_level`] reads the noise: a unit, in the middle of what
-/// the fixtures' renderers write (their robust brightness lies in 0.07–0.17).
-const LEVEL_BRIGHTNESS: f64 = 0.1;
-
 /// The image's typical noise as the colour feature sees it: the median over pixels of the noise
 /// standard deviation (root of the mean channel variance) through the derivative of the
 /// Reinhard tone curve at the pixel, e / (1 + e·c)², with the exposure e taken relative to the
@@ -339,7 +335,7 @@ pub fn tone_level(color: &Image, variance: &Image, exposure: f32) -> f64 {
     if brightness.is_nan() || brightness <= 0.0 {
         return 0.0;
     }
-    let e = exposure as f64 * LEVEL_BRIGHTNESS / brightness;
+    let e = exposure as f64 * crate::condition::UNIT_BRIGHTNESS / brightness;
     let mut levels: Vec<f64> = color
         .data()
         .par_chunks_exact(3)

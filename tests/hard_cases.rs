@@ -163,53 +163,83 @@ fn full_pipeline_is_identical_on_one_and_two_threads() {
     assert_eq!(run_on(1), run_on(2));
 }
 
-/// relMSE of `out / k` against the ×1 reference: quality judged at one common brightness.
-fn rel_mse_at_unit_scale(out: &Image, k: f32, reference: &Image) -> f64 {
-    let back = Image::from_fn(out.width(), out.height(), 3, |x, y, c| out.at(x, y)[c] / k);
-    gsid::metrics::rel_mse(&back, reference)
+/// `out / k`: a result brought back to the ×1 render's scale.
+fn at_unit_scale(out: &Image, k: f32) -> Image {
+    Image::from_fn(out.width(), out.height(), 3, |x, y, c| out.at(x, y)[c] / k)
 }
 
-#[test]
-fn results_do_not_depend_on_the_render_s_brightness_scale() {
-    let set =
-        gsid::io::load_render_set(std::path::Path::new("fixtures/mitsuba-cornell/spp4")).unwrap();
-    let reference = gsid::io::read_image(set.reference.as_ref().unwrap(), 3).unwrap();
-    let at = |k: f32| {
-        let mut b = gsid::Buffers::from(set.set.clone());
-        b.get_mut("color")
+/// The render set with every radiance buffer scaled by `k` (a variance by k²), as a renderer with a
+/// different exposure would write it.
+fn exposed(set: &gsid::RenderSet, k: f32, with_noise: bool) -> Buffers {
+    let mut b = Buffers::from(set.clone());
+    for name in ["color", "color_a", "color_b", "variance"] {
+        let present = b.get(name).is_some();
+        if !present {
+            continue;
+        }
+        if !with_noise && name != "color" {
+            b.remove(name);
+            continue;
+        }
+        let factor = if name == "variance" { k * k } else { k };
+        b.get_mut(name)
             .unwrap()
             .data_mut()
             .iter_mut()
-            .for_each(|v| *v *= k);
-        rel_mse_at_unit_scale(&run("full", &[], &mut b), k, &reference)
-    };
-    let unit = at(1.0);
-    for k in [1e-3f32, 0.01, 100.0, 1e4] {
-        let e = at(k);
-        assert!(
-            e < 1.5 * unit,
-            "brightness ×{k}: relMSE {e:.5} vs {unit:.5} at ×1"
-        );
+            .for_each(|v| *v *= factor);
+    }
+    b
+}
+
+#[test]
+fn results_follow_the_render_s_brightness_scale() {
+    // textured carries gsid render's variance and half buffers: both ways of knowing the noise.
+    let set = gsid::io::load_render_set(std::path::Path::new("fixtures/textured/spp4")).unwrap();
+    let reference = gsid::io::read_image(set.reference.as_ref().unwrap(), 3).unwrap();
+    assert!(set.set.noise.variance.is_some());
+    for with_noise in [false, true] {
+        let out =
+            |k: f32| at_unit_scale(&run("full", &[], &mut exposed(&set.set, k, with_noise)), k);
+        let unit = out(1.0);
+        // The filter itself is good at ×1, so "the same output up to scale" is a meaningful claim.
+        assert!(gsid::metrics::rel_mse(&unit, &reference) < 0.02);
+        for k in [1e-3f32, 1e4] {
+            let e = gsid::metrics::rel_mse(&out(k), &unit);
+            assert!(
+                e <= 1e-3,
+                "brightness ×{k} (noise buffers: {with_noise}): relMSE {e:.2e} against the ×1 output"
+            );
+        }
     }
 }
 
 #[test]
-fn renders_in_the_calibrated_range_are_not_rescaled() {
-    for name in [
+fn every_render_is_filtered_at_the_unit_brightness() {
+    let unit = gsid::condition::UNIT_BRIGHTNESS;
+    let mut images: Vec<Image> = [
         "mitsuba-cornell",
         "cornell",
         "caustics",
         "textured",
         "detail",
-    ] {
-        let c = gsid::io::read_image(
+    ]
+    .iter()
+    .map(|name| {
+        gsid::io::read_image(
             std::path::Path::new(&format!("fixtures/{name}/spp1/color.exr")),
             3,
         )
-        .unwrap();
-        assert_eq!(gsid::condition::exposure_scale(&c), 1.0, "{name}");
+        .unwrap()
+    })
+    .collect();
+    images.push(Image::filled(4, 4, 3, 100.0));
+    images.push(Image::filled(4, 4, 3, 1e-30));
+    for img in images {
+        let k = gsid::condition::exposure_scale(&img);
+        let scaled = Image::from_fn(img.width(), img.height(), 3, |x, y, c| img.at(x, y)[c] * k);
+        let b = gsid::condition::robust_brightness(&scaled);
+        assert!((b / unit - 1.0).abs() < 1e-5, "brightness {b} after ×{k}");
     }
-    assert!(gsid::condition::exposure_scale(&Image::filled(4, 4, 3, 100.0)) < 0.01);
     assert_eq!(gsid::condition::exposure_scale(&Image::new(4, 4, 3)), 1.0);
 }
 
