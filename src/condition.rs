@@ -204,9 +204,10 @@ pub fn sanitize(color: Option<&mut Image>, features: &mut FeatureSet) -> Sanitiz
 
 /// The robust brightness every render is filtered at. The tone curve, σ, the outlier floors and the
 /// pyramid's log offset all read colour on an absolute scale; bringing every render to one brightness
-/// first makes the result independent of the renderer's exposure (up to rounding). The value is a unit
-/// in the middle of what renderers write for a well-exposed frame.
-pub const UNIT_BRIGHTNESS: f64 = 0.1;
+/// first makes the result independent of the renderer's exposure (up to rounding). The value is the
+/// robust brightness of the Mitsuba box (fixtures/mitsuba-cornell), the scene the spec's calibration
+/// table (docs/ALGORITHM.md §3) was measured on, so plain SID and GSID still reproduce that table.
+pub const UNIT_BRIGHTNESS: f64 = 0.072;
 
 /// The factor that brings `color`'s robust brightness (mean luminance of the pixels at or below the
 /// 99th percentile, so lights and fireflies do not count) to [`UNIT_BRIGHTNESS`]; 1 for a black image.

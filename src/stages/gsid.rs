@@ -57,7 +57,7 @@ impl Default for GsidParams {
             exposure: 1.0,
             mask: None,
             noise: None,
-            noise_ref: 0.05,
+            noise_ref: 0.04,
             noise_power: 1.0,
         }
     }

@@ -1,0 +1,83 @@
+"""Mean `gsid ablate` rows over fixtures, per sample count: what each stage and choice buys at every spp.
+
+For every fixture × spp this runs `target/release/gsid ablate fixtures/<name>/spp<N> --pipeline P --out
+rows.json` on the *whole* render set (so the noise rows can compare the image-only estimate with the
+renderer's `variance.exr`/half buffers where the set has them; mitsuba-cornell has none, so its two rows
+agree), and prints, per spp, each variant's mean SSIM and mean relMSE over the fixtures and its mean
+ΔSSIM to the pipeline as shipped. Seconds are left out (ablate times one run; see compare_denoisers).
+
+    python3 scripts/ablate_summary.py                       # full, five fixtures, 1/4/16/64 spp
+    python3 scripts/ablate_summary.py --pipeline balanced --spp 1,4 --rows "fixed σ,without walks"
+
+Errors (a missing fixture or binary) give a one-line message and exit code 2.
+"""
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from concurrent.futures import ThreadPoolExecutor
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+FIXTURES = ["mitsuba-cornell", "cornell", "caustics", "textured", "detail"]
+
+
+def fail(message):
+    print(f"ablate_summary: {message}", file=sys.stderr)
+    sys.exit(2)
+
+
+def ablate(gsid, setdir, pipeline, out):
+    r = subprocess.run([gsid, "ablate", setdir, "--pipeline", pipeline, "--quiet", "--threads", "1",
+                        "--out", out], capture_output=True, text=True)
+    if r.returncode:
+        fail(f"{setdir}: {r.stderr.strip().splitlines()[-1] if r.stderr.strip() else 'gsid ablate failed'}")
+    with open(out) as f:
+        return json.load(f)
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--pipeline", default="full")
+    p.add_argument("--fixtures", default=",".join(FIXTURES))
+    p.add_argument("--spp", default="1,4,16,64")
+    p.add_argument("--rows", default="", help="comma-separated substrings: only the variants containing one")
+    a = p.parse_args()
+    gsid = os.path.join(ROOT, "target", "release", "gsid")
+    if not os.path.exists(gsid):
+        fail(f"{gsid}: not built (cargo build --release)")
+    fixtures, spps = a.fixtures.split(","), [int(s) for s in a.spp.split(",")]
+    cells = [(fx, s) for s in spps for fx in fixtures]
+    for fx, s in cells:
+        if not os.path.isdir(os.path.join(ROOT, "fixtures", fx, f"spp{s}")):
+            fail(f"fixtures/{fx}/spp{s}: no such render set")
+    tmp = tempfile.mkdtemp()
+    with ThreadPoolExecutor(2) as ex:
+        tables = list(ex.map(lambda c: ablate(gsid, os.path.join(ROOT, "fixtures", c[0], f"spp{c[1]}"),
+                                              a.pipeline, os.path.join(tmp, f"{c[0]}-{c[1]}.json")), cells))
+    wanted = [w for w in a.rows.split(",") if w]
+    print(f"`gsid ablate --pipeline {a.pipeline}`, mean over {', '.join(fixtures)}: SSIM / relMSE (ΔSSIM)\n")
+    print("| variant | " + " | ".join(f"{s} spp" for s in spps) + " |")
+    print("| --- |" + " --- |" * len(spps))
+    first = tables[0]["rows"] if isinstance(tables[0], dict) else tables[0]
+    names = [row["variant"] for row in first]
+    for name in names:
+        if wanted and not any(w in name for w in wanted) and name != names[0]:
+            continue
+        cols = []
+        for s in spps:
+            rows = [t["rows"] if isinstance(t, dict) else t for (fx, ss), t in zip(cells, tables) if ss == s]
+            pick = [next(r for r in rs if r["variant"] == name) for rs in rows]
+            base = [rs[0] for rs in rows]
+            ssim = statistics.mean(r["ssim"] for r in pick)
+            rel = statistics.mean(r["relmse"] for r in pick)
+            d = ssim - statistics.mean(r["ssim"] for r in base)
+            cols.append(f"{ssim:.4f} / {rel:.4f} ({d:+.4f})")
+        print(f"| {name} | " + " | ".join(cols) + " |")
+
+
+if __name__ == "__main__":
+    main()
