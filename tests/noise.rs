@@ -34,15 +34,24 @@ fn median_errors(estimate: &[f32], truth: &[f32]) -> (f64, f64) {
     (median(errors), median(ratios))
 }
 
-/// The estimate from colour, albedo, normal and depth only (what most users have).
-fn estimate(fixture: &str, spp: u32) -> (Vec<f32>, Vec<f32>) {
-    let root = Path::new("fixtures").join(fixture);
-    let mut set = io::load_render_set(&root.join(format!("spp{spp}")))
-        .expect("fixture")
-        .set;
+/// `fixtures/NAME/sppN` as `scripts/compare_denoisers.py` gives it to gsid: colour, albedo, normal
+/// and depth only (what most users have).
+fn four_buffers(fixture: &str, spp: u32) -> RenderSet {
+    let dir = Path::new("fixtures")
+        .join(fixture)
+        .join(format!("spp{spp}"));
+    let mut set = io::load_render_set(&dir).expect("fixture").set;
     for f in [Feature::Material, Feature::Shadow] {
         set.features.take(f);
     }
+    set.noise = Default::default();
+    set
+}
+
+/// The estimate from colour, albedo, normal and depth only.
+fn estimate(fixture: &str, spp: u32) -> (Vec<f32>, Vec<f32>) {
+    let root = Path::new("fixtures").join(fixture);
+    let set = four_buffers(fixture, spp);
     let est = noise::estimate(&set.color, &set.features);
     let per_sample = io::read_image(&root.join("sample_variance.exr"), 3).expect("truth");
     let truth = per_sample.data().iter().map(|v| v / spp as f32).collect();
@@ -157,20 +166,6 @@ fn noise_aware_presets_stay_finite_and_deterministic_on_hard_noise() {
     }
 }
 
-/// `fixtures/NAME/sppN` as `scripts/compare_denoisers.py` gives it to gsid: colour, albedo, normal
-/// and depth only.
-fn four_buffers(fixture: &str, spp: u32) -> Buffers {
-    let dir = Path::new("fixtures")
-        .join(fixture)
-        .join(format!("spp{spp}"));
-    let mut set = io::load_render_set(&dir).expect("fixture").set;
-    for f in [Feature::Material, Feature::Shadow] {
-        set.features.take(f);
-    }
-    set.noise = Default::default();
-    Buffers::from(set)
-}
-
 /// The stage `id` of `stages`, or a panic naming it (the preset's layout changed).
 fn stage<'a>(stages: &'a mut [gsid::spec::StageSpec], id: &str) -> &'a mut gsid::spec::StageSpec {
     stages
@@ -191,7 +186,7 @@ fn noise_power_zero_is_a_fixed_sigma() {
     for (fixture, spp, gsid_sigma, atrous_sigma) in
         [("textured", 1, 2.0, 0.4), ("detail", 64, 0.3, 0.1)]
     {
-        let buffers = four_buffers(fixture, spp);
+        let buffers = Buffers::from(four_buffers(fixture, spp));
         let mut auto = PipelineSpec::resolve("full").unwrap();
         auto.apply_set(&format!("pyramid.gsid.sigma={gsid_sigma}"))
             .unwrap();
