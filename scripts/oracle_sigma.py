@@ -9,7 +9,9 @@ The presets take GSID's σ and the à-trous σ from the measured noise (docs/ALG
     `--set pyramid.gsid.sigma=S --set pyramid.gsid.noise_power=0 --set atrous.sigma=A
     --set atrous.noise_power=0`: with power 0 the noise factor is 1 at any level, so σ = sigma at every
     pyramid level and in every à-trous pass (`cargo test --release --test noise noise_power_zero`
-    checks that this gives the same bits as the stages without a `noise` buffer). Everything else
+    checks that this gives the same bits as the stages without a `noise` buffer; a preset's own
+    `levelN = { gsid = { ... } }` override would win over `pyramid.gsid.*` at that level, and the
+    shipped presets have none). Everything else
     stays as shipped and stays on: the outlier stage, the `noise` stages (the blend reads their
     estimate), the pyramid, and the final blend back to the input where the noise does not explain
     the change.
