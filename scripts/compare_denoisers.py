@@ -87,70 +87,15 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-ALL_FIXTURES = ["mitsuba-cornell", "cornell", "caustics", "textured", "detail"]
-MULTILAYER_FIXTURES = ["cycles-studio"]
-# What gsid is given by default: what most renderers write and what OIDN's comparison gets.
-GSID_BUFFERS = ("color", "albedo", "normal", "depth")
-NOISE_BUFFERS = ("variance", "color_a", "color_b")
-# Blender passes OIDN reads from a multilayer file, with their channels.
-LAYER_PASSES = {"color": ("Combined", "RGB"), "albedo": ("Denoising Albedo", "RGB"),
-                "normal": ("Denoising Normal", "XYZ")}
+from gsidscore import (ALL_FIXTURES, GSID_BUFFERS, LAYER_PASSES, NOISE_BUFFERS, ROOT, fail, gsid_eval,
+                       gsid_pipelines, git_commit, linked_set, note, parse_spps, read_pass, read_rgb,
+                       require_gsid, scored_case, write_rgb)
+from gsidscore import cases as fixture_cases
+
 DEFAULT_PIPELINES = ["fast", "balanced", "quality", "full"]
-CHANNELS = ("R", "G", "B")
 
 
-def fail(message, code=2):
-    print(f"compare_denoisers: error: {message}", file=sys.stderr)
-    sys.exit(code)
-
-
-def note(message):
-    print(message, file=sys.stderr, flush=True)
-
-
-# ---------------------------------------------------------------------------- EXR I/O
-
-def read_rgb(path):
-    """An EXR's R, G, B channels as a contiguous float32 HxWx3 array (row 0 = top row)."""
-    import numpy as np
-    import OpenEXR
-
-    with OpenEXR.File(str(path), separate_channels=True) as f:
-        ch = f.channels()
-        missing = [c for c in CHANNELS if c not in ch]
-        if missing:
-            fail(f"{path}: no channel {','.join(missing)} (has {','.join(sorted(ch))})")
-        return np.ascontiguousarray(np.stack([ch[c].pixels for c in CHANNELS], axis=-1), dtype=np.float32)
-
-
-def read_pass(path, name, channels):
-    """One pass of a Blender multilayer EXR (`ViewLayer.<name>.<channel>`) as HxWx3 float32."""
-    import numpy as np
-    import OpenEXR
-
-    with OpenEXR.File(str(path), separate_channels=True) as f:
-        ch = f.channels()
-        picked = []
-        for c in channels:
-            full = [k for k in ch if k.split(".")[-2:] == [name, c]]
-            if len(full) != 1:
-                fail(f"{path}: no single channel {name}.{c} (has {', '.join(sorted(ch))})")
-            picked.append(ch[full[0]].pixels)
-        return np.ascontiguousarray(np.stack(picked, axis=-1), dtype=np.float32)
-
-
-def write_rgb(path, image):
-    """Write HxWx3 as a float32, zip-compressed RGB EXR."""
-    import numpy as np
-    import OpenEXR
-
-    image = np.asarray(image, dtype=np.float32)
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    channels = {c: np.ascontiguousarray(image[..., i]) for i, c in enumerate(CHANNELS)}
-    with OpenEXR.File(header, channels) as f:
-        f.write(str(path))
-
+# ---------------------------------------------------------------------------- inputs
 
 def sanitize_color(color):
     """NaN/Inf/negative colour to 0, as gsid does before denoising (the fixtures have none)."""
@@ -281,21 +226,6 @@ def bm3d_denoise(setdir, out_path, runs, curve):
 
 # ---------------------------------------------------------------------------- gsid
 
-def gsid_eval(gsid, image, reference):
-    proc = subprocess.run([str(gsid), "eval", str(image), "--reference", str(reference), "--json"],
-                          capture_output=True, text=True, cwd=ROOT)
-    if proc.returncode != 0:
-        fail(f"gsid eval {image}: {proc.stderr.strip() or proc.stdout.strip()}", proc.returncode)
-    return json.loads(proc.stdout)
-
-
-def gsid_pipelines(gsid):
-    proc = subprocess.run([str(gsid), "pipelines"], capture_output=True, text=True, cwd=ROOT)
-    if proc.returncode != 0:
-        fail(f"gsid pipelines: {proc.stderr.strip()}", 1)
-    return [line.split()[0] for line in proc.stdout.splitlines() if line.strip()]
-
-
 def gsid_denoise(gsid, setdir, pipeline, out_path, runs):
     times = []
     for _ in range(runs):
@@ -329,11 +259,6 @@ def cpu_model():
     return f"{model} ({isa})" if isa else model
 
 
-def git_commit():
-    proc = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT)
-    return proc.stdout.strip() if proc.returncode == 0 else "unknown"
-
-
 def parse_args(argv):
     p = argparse.ArgumentParser(description="Compare gsid with Open Image Denoise and BM3D (see the file's docstring).")
     p.add_argument("--fixtures", default=",".join(ALL_FIXTURES), help="comma-separated fixture names")
@@ -355,30 +280,6 @@ def parse_args(argv):
     if args.no_bm3d:
         args.bm3d_runs = 0
     return args
-
-
-def linked_set(setdir, names, into):
-    """A folder `into` with links to just the buffers `names` of `setdir` that exist: what gsid sees."""
-    into.mkdir(parents=True, exist_ok=True)
-    for b in names:
-        src = setdir / f"{b}.exr"
-        link = into / src.name
-        if src.is_file() and not link.is_symlink():
-            link.symlink_to(src.resolve())
-    return into
-
-
-def multilayer_case(fx, spp):
-    """The multilayer file of `fx` at `spp` spp and its reference: the shared copy if present."""
-    for fdir in (ROOT.parent / "shared" / "fixtures" / fx, ROOT / "fixtures" / fx):
-        if fdir.is_dir():
-            path, ref = fdir / f"spp{spp}.exr", fdir / "reference.exr"
-            if not path.is_file():
-                fail(f"fixture {fx!r} at {spp} spp: no {path}")
-            if not ref.is_file():
-                fail(f"fixture {fx!r}: no reference {ref}")
-            return path, ref
-    fail(f"fixture {fx!r}: no folder {ROOT / 'fixtures' / fx}")
 
 
 def summary(rows, spps):
@@ -410,30 +311,9 @@ def main(argv=None):
         return 0
 
     # Check every input before any slow work.
-    try:
-        spps = [int(s) for s in args.spp.split(",") if s.strip()]
-    except ValueError:
-        fail(f"--spp {args.spp!r}: expected comma-separated integers such as 1,4,16")
+    spps = parse_spps(args.spp)
     fixtures = [f.strip() for f in args.fixtures.split(",") if f.strip()]
-    cases = []
-    for fx in fixtures:
-        if fx in MULTILAYER_FIXTURES:
-            for spp in spps:
-                path, ref = multilayer_case(fx, spp)
-                cases.append((fx, spp, path, ref))
-            continue
-        fdir = ROOT / "fixtures" / fx
-        if not fdir.is_dir():
-            fail(f"fixture {fx!r}: no folder {fdir} (known: {', '.join(ALL_FIXTURES + MULTILAYER_FIXTURES)})")
-        ref = fdir / "reference.exr"
-        if not ref.is_file():
-            fail(f"fixture {fx!r}: no reference {ref}")
-        for spp in spps:
-            setdir = fdir / f"spp{spp}"
-            for buf in ("color", "albedo", "normal"):
-                if not (setdir / f"{buf}.exr").is_file():
-                    fail(f"fixture {fx!r} at {spp} spp: no {setdir / (buf + '.exr')}")
-            cases.append((fx, spp, setdir, ref))
+    cases = fixture_cases(fixtures, spps)
     try:
         import numpy as np
         import OpenEXR  # noqa: F401
@@ -444,17 +324,7 @@ def main(argv=None):
     except ImportError as e:
         fail(f"missing Python package ({e}); run: pip install -r scripts/requirements-compare.txt")
 
-    gsid = ROOT / "target" / "release" / "gsid"
-    if not args.no_build:
-        note("building gsid (cargo build --release --quiet --bin gsid) ...")
-        try:
-            proc = subprocess.run(["cargo", "build", "--release", "--quiet", "--bin", "gsid"], cwd=ROOT)
-        except FileNotFoundError:
-            fail("cargo not found: install Rust, or build target/release/gsid and pass --no-build")
-        if proc.returncode != 0:
-            fail("cargo build --release --bin gsid failed (see above)", 1)
-    if not (gsid.is_file() and os.access(gsid, os.X_OK)):
-        fail(f"no gsid binary at {gsid}: run cargo build --release --bin gsid (or drop --no-build)")
+    gsid = require_gsid(not args.no_build)
 
     available = gsid_pipelines(gsid)
     pipelines = [p for p in args.pipelines if p in available]
@@ -505,18 +375,10 @@ def main(argv=None):
     for fx, spp, setdir, ref in cases:
         note(f"{fx} spp{spp}:")
         stem = outdir / f"{fx}-spp{spp}"
-        if setdir.is_file():
-            # Scored by their Combined pass: `gsid eval` reads a plain RGB file.
-            noisy, plain_ref = Path(f"{stem}-input.exr"), Path(f"{stem}-reference.exr")
-            write_rgb(noisy, read_pass(setdir, *LAYER_PASSES["color"]))
-            write_rgb(plain_ref, read_pass(ref, *LAYER_PASSES["color"]))
-            ref = plain_ref
-            inputs = {"": setdir}
-        else:
-            noisy = setdir / "color.exr"
-            inputs = {"": linked_set(setdir, GSID_BUFFERS, Path(f"{stem}-set"))}
-            if args.noise_buffers and any((setdir / f"{b}.exr").is_file() for b in NOISE_BUFFERS):
-                inputs["+var"] = linked_set(setdir, GSID_BUFFERS + NOISE_BUFFERS, Path(f"{stem}-set-var"))
+        gsid_input, noisy, ref = scored_case(setdir, ref, stem)
+        inputs = {"": gsid_input}
+        if args.noise_buffers and setdir.is_dir() and any((setdir / f"{b}.exr").is_file() for b in NOISE_BUFFERS):
+            inputs["+var"] = linked_set(setdir, GSID_BUFFERS + NOISE_BUFFERS, Path(f"{stem}-set-var"))
         add(fx, spp, "input (noisy)", noisy, ref)
 
         out = Path(f"{stem}-oidn.exr")

@@ -34,15 +34,24 @@ fn median_errors(estimate: &[f32], truth: &[f32]) -> (f64, f64) {
     (median(errors), median(ratios))
 }
 
-/// The estimate from colour, albedo, normal and depth only (what most users have).
-fn estimate(fixture: &str, spp: u32) -> (Vec<f32>, Vec<f32>) {
-    let root = Path::new("fixtures").join(fixture);
-    let mut set = io::load_render_set(&root.join(format!("spp{spp}")))
-        .expect("fixture")
-        .set;
+/// `fixtures/NAME/sppN` as `scripts/compare_denoisers.py` gives it to gsid: colour, albedo, normal
+/// and depth only (what most users have).
+fn four_buffers(fixture: &str, spp: u32) -> RenderSet {
+    let dir = Path::new("fixtures")
+        .join(fixture)
+        .join(format!("spp{spp}"));
+    let mut set = io::load_render_set(&dir).expect("fixture").set;
     for f in [Feature::Material, Feature::Shadow] {
         set.features.take(f);
     }
+    set.noise = Default::default();
+    set
+}
+
+/// The estimate from colour, albedo, normal and depth only.
+fn estimate(fixture: &str, spp: u32) -> (Vec<f32>, Vec<f32>) {
+    let root = Path::new("fixtures").join(fixture);
+    let set = four_buffers(fixture, spp);
     let est = noise::estimate(&set.color, &set.features);
     let per_sample = io::read_image(&root.join("sample_variance.exr"), 3).expect("truth");
     let truth = per_sample.data().iter().map(|v| v / spp as f32).collect();
@@ -154,5 +163,55 @@ fn noise_aware_presets_stay_finite_and_deterministic_on_hard_noise() {
                 }
             }
         }
+    }
+}
+
+/// The stage `id` of `stages`, or a panic naming it (the preset's layout changed).
+fn stage<'a>(stages: &'a mut [gsid::spec::StageSpec], id: &str) -> &'a mut gsid::spec::StageSpec {
+    stages
+        .iter_mut()
+        .find(|s| s.id == id)
+        .unwrap_or_else(|| panic!("no stage `{id}`"))
+}
+
+/// What `scripts/oracle_sigma.py` calls fixed σ: `noise_power = 0` on GSID and the à-trous passes
+/// gives the same bits as the same stages without a `noise` buffer, i.e. σ = `sigma` at every
+/// pyramid level, and `full` without it does follow the noise.
+#[test]
+fn noise_power_zero_is_a_fixed_sigma() {
+    let run = |spec: &PipelineSpec, buffers: &Buffers| {
+        let pipeline = spec.build().unwrap();
+        pipeline.run(&mut buffers.clone(), 7, false).unwrap().0
+    };
+    for (fixture, spp, gsid_sigma, atrous_sigma) in
+        [("textured", 1, 2.0, 0.4), ("detail", 64, 0.3, 0.1)]
+    {
+        let buffers = Buffers::from(four_buffers(fixture, spp));
+        let mut auto = PipelineSpec::resolve("full").unwrap();
+        auto.apply_set(&format!("pyramid.gsid.sigma={gsid_sigma}"))
+            .unwrap();
+        auto.apply_set(&format!("atrous.sigma={atrous_sigma}"))
+            .unwrap();
+        let mut fixed = auto.clone();
+        fixed.apply_set("pyramid.gsid.noise_power=0").unwrap();
+        fixed.apply_set("atrous.noise_power=0").unwrap();
+        let mut unlinked = auto.clone();
+        let atrous = stage(&mut unlinked.stages, "atrous");
+        assert!(atrous.params.remove("noise").is_some());
+        let pyramid = stage(&mut unlinked.stages, "pyramid");
+        let gsid = stage(&mut pyramid.children, "gsid");
+        assert!(gsid.params.remove("noise").is_some());
+
+        let fixed = run(&fixed, &buffers);
+        assert_eq!(
+            fixed.data(),
+            run(&unlinked, &buffers).data(),
+            "{fixture} {spp} spp: noise_power 0 is not σ = sigma"
+        );
+        assert_ne!(
+            fixed.data(),
+            run(&auto, &buffers).data(),
+            "{fixture} {spp} spp: σ does not follow the noise"
+        );
     }
 }
