@@ -131,7 +131,7 @@ fn rgb(p: &Plane, i: usize) -> [f64; 3] {
 }
 
 /// The factor that brings the colour's robust brightness (mean luminance of the pixels at or below
-/// the 99th percentile) into [0.05, 0.25], as gsid does before filtering (README, "Brightness").
+/// the 99th percentile) to 0.072, as gsid does before filtering (README, "Brightness").
 /// It only moves the tone curve: averaging is linear and the result is scaled back.
 fn exposure(color: &[[f64; 3]]) -> f64 {
     let mut lum: Vec<f64> = color
@@ -142,10 +142,10 @@ fn exposure(color: &[[f64; 3]]) -> f64 {
     let p99 = lum[((lum.len() - 1) as f64 * 0.99) as usize];
     let kept: Vec<f64> = lum.into_iter().filter(|&l| l <= p99).collect();
     let mean = kept.iter().sum::<f64>() / kept.len() as f64;
-    if mean <= 0.0 || (0.05..=0.25).contains(&mean) {
-        1.0
+    if mean > 0.0 {
+        0.072 / mean
     } else {
-        mean.clamp(0.05, 0.25) / mean
+        1.0
     }
 }
 
