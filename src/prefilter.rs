@@ -194,8 +194,8 @@ pub fn filter(img: &Image, variance: &[f32], kind: Kind, p: &Params) -> Image {
                         }
                     }
                     let weight = (-(dist / terms as f64).max(0.0)).exp();
-                    for ch in 0..c {
-                        sum[ch] += weight * img.pixel(j)[ch] as f64;
+                    for (acc, &v) in sum.iter_mut().zip(img.pixel(j)) {
+                        *acc += weight * v as f64;
                     }
                     total += weight;
                 }
