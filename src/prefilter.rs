@@ -142,76 +142,121 @@ pub fn variance(img: &Image, kind: Kind, keep: f64) -> Vec<f32> {
         .collect()
 }
 
+/// Rows one parallel task filters: every pixel's sums still run over the offsets in one fixed
+/// order, so the band size changes no bit.
+const BAND: usize = 16;
+
 /// NL-means over `img` with its per-pixel `variance` ([`variance`]). The distance of the patches
-/// around i and j, per channel and patch pixel p, is ((u_p − u_q)² − (v_p + min(v_p, v_q))) /
-/// (ε + k²(v_p + v_q)), averaged; j weighs exp(−max(0, that)). Subtracting the expected noise makes
-/// two noisy samples of one value distance 0; dividing by it makes a difference the noise cannot
-/// explain (an edge, a texture) weigh nothing. A pixel whose variance reads 0 is kept as it is.
+/// around i and j, per channel and patch pixel p (q its partner in j's patch), is
+/// ((u_p − u_q)² − (v_p + min(v_p, v_q))) / (ε_p + k²(v_p + v_q)), averaged; j weighs
+/// exp(−max(0, that)). Subtracting the expected noise makes two noisy samples of one value
+/// distance 0; dividing by it makes a difference the noise cannot explain (an edge, a texture)
+/// weigh nothing. A pixel whose variance reads 0 is kept as it is.
+///
+/// Computed offset by offset (the classic fast NL-means): for one offset, the per-pixel terms over
+/// a band of rows, box-summed over the patch, give every pixel's distance to its partner at once.
 pub fn filter(img: &Image, variance: &[f32], kind: Kind, p: &Params) -> Image {
     let (w, h) = img.dims();
     let c = img.channels();
+    let data = img.data();
+    let known: Vec<bool> = (0..w * h).map(|i| known(img, kind, i)).collect();
+    let active = |i: usize| variance[i] > 0.0 && known[i];
+    let eps: Vec<f64> = (0..w * h)
+        .map(|i| match kind {
+            Kind::Depth => (EPS * (data[i] as f64).powi(2)).max(f64::MIN_POSITIVE),
+            Kind::Plain | Kind::Normal => EPS,
+        })
+        .collect();
     let (r, f) = (p.radius as isize, p.patch as isize);
     let k2 = p.strength * p.strength;
-    let at = |x: isize, y: isize| {
+    let terms = ((2 * f + 1) * (2 * f + 1)) as f64 * c as f64;
+    let clamp = |x: isize, y: isize| {
         let (x, y) = (x.clamp(0, w as isize - 1), y.clamp(0, h as isize - 1));
         y as usize * w + x as usize
     };
     let mut out = img.par_clone();
     out.data_mut()
-        .par_chunks_mut(c)
+        .par_chunks_mut(BAND * w * c)
         .enumerate()
-        .for_each(|(i, px)| {
-            if variance[i] <= 0.0 || !known(img, kind, i) {
+        .for_each(|(band, rows)| {
+            let y0 = band * BAND;
+            let y1 = (y0 + BAND).min(h);
+            if !(y0 * w..y1 * w).any(active) {
                 return;
             }
-            let eps = match kind {
-                Kind::Depth => EPS * (img.pixel(i)[0] as f64).powi(2),
-                Kind::Plain | Kind::Normal => EPS,
-            }
-            .max(f64::MIN_POSITIVE);
-            let (x, y) = ((i % w) as isize, (i / w) as isize);
-            let mut sum = [0.0f64; 3];
-            let mut total = 0.0f64;
-            for ny in (y - r).max(0)..=(y + r).min(h as isize - 1) {
-                for nx in (x - r).max(0)..=(x + r).min(w as isize - 1) {
-                    let j = ny as usize * w + nx as usize;
-                    if !known(img, kind, j) {
-                        continue;
-                    }
-                    let mut dist = 0.0f64;
-                    let mut terms = 0usize;
-                    for dy in -f..=f {
-                        for dx in -f..=f {
-                            let (a, b) = (at(x + dx, y + dy), at(nx + dx, ny + dy));
+            // Terms over the band's rows and columns widened by the patch radius.
+            let (tw, th) = (w + 2 * f as usize, y1 - y0 + 2 * f as usize);
+            let mut term = vec![0.0f64; tw * th];
+            let mut across = vec![0.0f64; w * th];
+            let mut sum = vec![[0.0f64; 3]; (y1 - y0) * w];
+            let mut total = vec![0.0f64; (y1 - y0) * w];
+            for oy in -r..=r {
+                for ox in -r..=r {
+                    for ty in 0..th {
+                        let py = y0 as isize + ty as isize - f;
+                        for tx in 0..tw {
+                            let px = tx as isize - f;
+                            let (a, b) = (clamp(px, py), clamp(px + ox, py + oy));
                             let (va, vb) = (variance[a] as f64, variance[b] as f64);
                             let expected = va + va.min(vb);
-                            let scale = eps + k2 * (va + vb);
+                            let scale = eps[a] + k2 * (va + vb);
+                            let mut d2 = 0.0;
                             for ch in 0..c {
-                                let d = img.pixel(a)[ch] as f64 - img.pixel(b)[ch] as f64;
-                                dist += (d * d - expected) / scale;
+                                let d = data[a * c + ch] as f64 - data[b * c + ch] as f64;
+                                d2 += d * d;
                             }
-                            terms += c;
+                            term[ty * tw + tx] = (d2 - c as f64 * expected) / scale;
                         }
                     }
-                    let weight = (-(dist / terms as f64).max(0.0)).exp();
-                    for (acc, &v) in sum.iter_mut().zip(img.pixel(j)) {
-                        *acc += weight * v as f64;
+                    for ty in 0..th {
+                        let row = &term[ty * tw..(ty + 1) * tw];
+                        for x in 0..w {
+                            across[ty * w + x] = row[x..x + 2 * f as usize + 1].iter().sum();
+                        }
                     }
-                    total += weight;
+                    for y in y0..y1 {
+                        let (ny, ly) = (y as isize + oy, y - y0);
+                        if ny < 0 || ny >= h as isize {
+                            continue;
+                        }
+                        for x in 0..w {
+                            let (i, nx) = (y * w + x, x as isize + ox);
+                            if nx < 0 || nx >= w as isize || !active(i) {
+                                continue;
+                            }
+                            let j = ny as usize * w + nx as usize;
+                            if !known[j] {
+                                continue;
+                            }
+                            let dist: f64 = (0..=2 * f as usize)
+                                .map(|dy| across[(ly + dy) * w + x])
+                                .sum();
+                            let weight = (-(dist / terms).max(0.0)).exp();
+                            let acc = &mut sum[ly * w + x];
+                            for ch in 0..c {
+                                acc[ch] += weight * data[j * c + ch] as f64;
+                            }
+                            total[ly * w + x] += weight;
+                        }
+                    }
                 }
             }
-            // The pixel itself is in its window with weight 1, so total ≥ 1.
-            let mut v: [f64; 3] = std::array::from_fn(|ch| sum[ch] / total);
-            if kind == Kind::Normal {
-                let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                if len > 1e-6 {
+            for (l, px) in rows.chunks_exact_mut(c).enumerate() {
+                if !active(y0 * w + l) {
+                    continue;
+                }
+                // The pixel itself is its own partner at offset 0, weight 1, so total ≥ 1.
+                let mut v: [f64; 3] = std::array::from_fn(|ch| sum[l][ch] / total[l]);
+                if kind == Kind::Normal {
+                    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                    if len <= 1e-6 {
+                        continue;
+                    }
                     v.iter_mut().for_each(|x| *x /= len);
-                } else {
-                    return;
                 }
-            }
-            for ch in 0..c {
-                px[ch] = v[ch] as f32;
+                for (o, x) in px.iter_mut().zip(v) {
+                    *o = x as f32;
+                }
             }
         });
     out
