@@ -53,6 +53,7 @@ pub mod metrics;
 pub mod noise;
 pub mod outlier;
 pub mod pipeline;
+pub mod prefilter;
 pub mod progress;
 pub mod pyramid;
 #[cfg(feature = "cli")]

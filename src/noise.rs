@@ -230,7 +230,7 @@ fn pair_spread(
 }
 
 /// The mean of the `kept` smallest values (reorders `values`).
-fn trimmed_mean(values: &mut [f64], kept: usize) -> f64 {
+pub(crate) fn trimmed_mean(values: &mut [f64], kept: usize) -> f64 {
     if kept < values.len() {
         values.select_nth_unstable_by(kept, f64::total_cmp);
     }

@@ -327,6 +327,7 @@ fn ablate_prints_and_writes_the_table() {
     for variant in [
         "full (full)",
         "without outlier",
+        "without prefilter",
         "without pyramid",
         "without atrous",
         "without blend",
@@ -340,9 +341,9 @@ fn ablate_prints_and_writes_the_table() {
         assert!(table.contains(variant), "missing {variant}: {table}");
     }
     let text = std::fs::read_to_string(&csv).unwrap();
-    // Header, then: full, four stages removed (the noise stage is not: later stages read it), the
+    // Header, then: full, five stages removed (the noise stage is not: later stages read it), the
     // three noise rows, eight weights zeroed, plain SID.
-    assert_eq!(text.lines().count(), 1 + 17, "{text}");
+    assert_eq!(text.lines().count(), 1 + 18, "{text}");
     assert!(text.starts_with("variant,ssim,psnr,relmse,seconds,delta_ssim"));
     let bad = gsid(&[
         "ablate",

@@ -9,6 +9,7 @@ pub mod blend;
 pub mod gsid;
 pub mod noise;
 pub mod outlier;
+pub mod prefilter;
 pub mod pyramid;
 
 use std::time::Instant;
@@ -97,7 +98,15 @@ pub trait Stage: Send + Sync {
 }
 
 /// The stage kinds gsid knows, for error messages.
-pub const KINDS: &[&str] = &["atrous", "blend", "gsid", "noise", "outlier", "pyramid"];
+pub const KINDS: &[&str] = &[
+    "atrous",
+    "blend",
+    "gsid",
+    "noise",
+    "outlier",
+    "prefilter",
+    "pyramid",
+];
 
 /// Builds a stage from its spec: a composite kind from its children and overrides, any other kind
 /// from its parameter table alone.
@@ -113,6 +122,11 @@ pub fn build(spec: &StageSpec) -> Result<Box<dyn Stage>> {
         "gsid" => Ok(Box::new(gsid::GsidStage::from_table(id, io, params())?)),
         "noise" => Ok(Box::new(noise::NoiseStage::from_table(id, io, params())?)),
         "outlier" => Ok(Box::new(outlier::OutlierStage::from_table(
+            id,
+            io,
+            params(),
+        )?)),
+        "prefilter" => Ok(Box::new(prefilter::PrefilterStage::from_table(
             id,
             io,
             params(),
