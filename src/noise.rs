@@ -25,6 +25,8 @@ const RAW_SIDE: usize = 2 * RAW_RADIUS as usize + 1;
 const SMOOTH_RADIUS: isize = 3;
 /// Fewest surface-mates (the pixel included) a raw estimate needs.
 const MIN_MATES: usize = 4;
+/// Features compared per pixel by `same_key`.
+const KEYS: usize = 8;
 /// Keeps remodulation finite on black albedo.
 const ALBEDO_EPS: f32 = 0.02;
 
@@ -56,70 +58,88 @@ impl<'a> Surface<'a> {
         }
     }
 
-    /// The features `same` compares, packed per pixel: albedo, normal, depth, normal known (1/0).
-    /// A missing feature is zeros, which every pair passes, as when it is not compared at all.
-    fn keys(&self, n: usize) -> Vec<[f32; 8]> {
-        (0..n)
-            .into_par_iter()
+    /// The features `same_key` compares, one plane each: albedo (3), normal (3), depth, normal
+    /// known (1/0). A missing feature is zeros, which every pair passes, as when it is not compared.
+    fn planes(&self, n: usize) -> [Vec<f32>; KEYS] {
+        let plane = |src: Option<&[f32]>, stride: usize, k: usize| match src {
+            Some(v) => v.iter().skip(k).step_by(stride).copied().collect(),
+            None => vec![0.0; n],
+        };
+        let (a, nrm, z) = (self.albedo, self.normal, self.depth);
+        let mut planes: [Vec<f32>; KEYS] = [
+            plane(a, 3, 0),
+            plane(a, 3, 1),
+            plane(a, 3, 2),
+            plane(nrm, 3, 0),
+            plane(nrm, 3, 1),
+            plane(nrm, 3, 2),
+            plane(z, 1, 0),
+            Vec::new(),
+        ];
+        planes[7] = (0..n)
             .map(|i| {
-                let mut key = [0.0f32; 8];
-                if let Some(a) = self.albedo {
-                    key[..3].copy_from_slice(&a[3 * i..3 * i + 3]);
-                }
-                if let Some(nrm) = self.normal {
-                    key[3..6].copy_from_slice(&nrm[3 * i..3 * i + 3]);
-                }
-                if let Some(z) = self.depth {
-                    key[6] = z[i];
-                }
-                key[7] = if key[3..6].iter().any(|&x| x != 0.0) {
+                let known = planes[3][i] != 0.0 || planes[4][i] != 0.0 || planes[5][i] != 0.0;
+                if known {
                     1.0
                 } else {
                     0.0
-                };
-                key
+                }
             })
-            .collect()
+            .collect();
+        planes
     }
 
     /// For every pixel, which pixels of its window of `radius` (at most 3) lie on its surface.
     /// `same_key` is symmetric, so each pair is tested once: the forward half of every window
-    /// first, then the backward half read from the neighbours' forward halves.
+    /// first, then the backward half read from the neighbours' forward halves. Row by row and
+    /// cell by cell, so the tests run over contiguous runs of pixels.
     fn mates(&self, w: usize, h: usize, radius: usize) -> Mates {
         assert!(
             radius <= 3,
             "a window of radius {radius} has more cells than a u64 has bits"
         );
         let mut mates = Mates::new(w, radius);
-        let keys = self.keys(w * h);
+        let planes = self.planes(w * h);
         let last = (mates.side * mates.side - 1) as u32;
         let (forward, backward): (Vec<_>, Vec<_>) = mates
             .offsets()
             .partition(|&(_, dx, dy)| dy > 0 || (dy == 0 && dx >= 0));
-        let inside = |x: usize, y: usize, dx: isize, dy: isize| {
-            let (nx, ny) = (x as isize + dx, y as isize + dy);
-            (nx >= 0 && ny >= 0 && (nx as usize) < w && (ny as usize) < h)
-                .then(|| ny as usize * w + nx as usize)
+        // For row y and cell (dx, dy): the columns whose neighbour is inside, and that
+        // neighbour's index at the first of them.
+        let run = |y: usize, dx: isize, dy: isize| {
+            let ny = y as isize + dy;
+            let lo = (-dx).max(0) as usize;
+            let hi = (w as isize - dx).clamp(0, w as isize) as usize;
+            (ny >= 0 && (ny as usize) < h && lo < hi)
+                .then(|| (lo, hi, (ny * w as isize + lo as isize + dx) as usize))
         };
         let row = w.max(1);
         let mut fwd = vec![0u64; w * h];
         fwd.par_chunks_mut(row).enumerate().for_each(|(y, bits)| {
-            for (x, b) in bits.iter_mut().enumerate() {
-                let key = &keys[y * w + x];
-                for &(bit, dx, dy) in &forward {
-                    if inside(x, y, dx, dy).is_some_and(|j| same_key(key, &keys[j])) {
-                        *b |= 1 << bit;
-                    }
+            for &(bit, dx, dy) in &forward {
+                let Some((lo, hi, j0)) = run(y, dx, dy) else {
+                    continue;
+                };
+                let (i0, n) = (y * w + lo, hi - lo);
+                let p: [&[f32]; KEYS] = std::array::from_fn(|k| &planes[k][i0..i0 + n]);
+                let q: [&[f32]; KEYS] = std::array::from_fn(|k| &planes[k][j0..j0 + n]);
+                for (x, b) in bits[lo..hi].iter_mut().enumerate() {
+                    let same = same_key(
+                        &std::array::from_fn(|k| p[k][x]),
+                        &std::array::from_fn(|k| q[k][x]),
+                    );
+                    *b |= (same as u64) << bit;
                 }
             }
         });
         let mut bits = fwd.clone();
         bits.par_chunks_mut(row).enumerate().for_each(|(y, bits)| {
-            for (x, b) in bits.iter_mut().enumerate() {
-                for &(bit, dx, dy) in &backward {
-                    if inside(x, y, dx, dy).is_some_and(|j| fwd[j] >> (last - bit) & 1 == 1) {
-                        *b |= 1 << bit;
-                    }
+            for &(bit, dx, dy) in &backward {
+                let Some((lo, hi, j0)) = run(y, dx, dy) else {
+                    continue;
+                };
+                for (b, &f) in bits[lo..hi].iter_mut().zip(&fwd[j0..j0 + hi - lo]) {
+                    *b |= (f >> (last - bit) & 1) << bit;
                 }
             }
         });
@@ -147,21 +167,22 @@ impl<'a> Surface<'a> {
     }
 }
 
-/// Whether two pixels lie on one surface (their `Surface::keys`): albedo within
+/// Whether two pixels lie on one surface (their `Surface::planes`): albedo within
 /// `ALBEDO_TOLERANCE` per channel, normals both unknown or both known and within `NORMAL_COS`,
 /// depth within `DEPTH_TOLERANCE` of the larger. Symmetric in its arguments.
 #[inline(always)]
-fn same_key(p: &[f32; 8], q: &[f32; 8]) -> bool {
-    let albedo = (p[0] - q[0]).abs() > ALBEDO_TOLERANCE
-        || (p[1] - q[1]).abs() > ALBEDO_TOLERANCE
-        || (p[2] - q[2]).abs() > ALBEDO_TOLERANCE;
+fn same_key(p: &[f32; KEYS], q: &[f32; KEYS]) -> bool {
+    // `|` and `&`, not `||` and `&&`: no branches, so runs of pixels are tested in vector lanes.
+    let albedo = ((p[0] - q[0]).abs() > ALBEDO_TOLERANCE)
+        | ((p[1] - q[1]).abs() > ALBEDO_TOLERANCE)
+        | ((p[2] - q[2]).abs() > ALBEDO_TOLERANCE);
     let dot = p[3] * q[3] + p[4] * q[4] + p[5] * q[5];
     let known = p[7] != 0.0;
     // Two unknown normals (misses, or renderers without a normal) match.
-    let normal = known != (q[7] != 0.0) || (known && dot < NORMAL_COS);
+    let normal = (known != (q[7] != 0.0)) | (known & (dot < NORMAL_COS));
     let (zi, zj) = (p[6], q[6]);
     let scale = zi.max(zj);
-    let depth = scale > 0.0 && (zi - zj).abs() > DEPTH_TOLERANCE * scale;
+    let depth = (scale > 0.0) & ((zi - zj).abs() > DEPTH_TOLERANCE * scale);
     !(albedo | normal | depth)
 }
 
