@@ -383,13 +383,7 @@ pub fn smooth_measured(color: &Image, features: &FeatureSet, variance: &Image) -
             )
         })
         .collect();
-    let (w, h) = color.dims();
-    smooth(
-        color,
-        &surface,
-        &surface.mates(w, h, SMOOTH_RADIUS as usize),
-        &raw,
-    )
+    smooth_measured_raw(color, &surface, &raw)
 }
 
 /// The variance of the full-sample mean from two half-sample means: E[(a − b)²] / 4, smoothed.
@@ -408,12 +402,17 @@ pub fn from_halves(color: &Image, features: &FeatureSet, a: &Image, b: &Image) -
             (surface.demodulate_variance(i, var), 1)
         })
         .collect();
+    smooth_measured_raw(color, &surface, &raw)
+}
+
+/// [`smooth`] of per-pixel measured variances, with the surface-mates found here.
+fn smooth_measured_raw(color: &Image, surface: &Surface, raw: &[([f64; 3], usize)]) -> Image {
     let (w, h) = color.dims();
     smooth(
         color,
-        &surface,
+        surface,
         &surface.mates(w, h, SMOOTH_RADIUS as usize),
-        &raw,
+        raw,
     )
 }
 
@@ -588,6 +587,51 @@ mod tests {
             let u: f32 = (0..12).map(|_| uniform()).sum::<f32>() - 6.0;
             level + std * u
         })
+    }
+
+    #[test]
+    fn mates_are_the_pairwise_test_in_window_order() {
+        let (w, h) = (13, 9);
+        let mut set = FeatureSet::default();
+        let albedo = Image::from_fn(
+            w,
+            h,
+            3,
+            |x, y, k| {
+                if (x + 2 * y + k) % 5 < 2 {
+                    0.8
+                } else {
+                    0.3
+                }
+            },
+        );
+        // Some unknown normals, and some too short to match themselves.
+        let normal = Image::from_fn(w, h, 3, |x, y, k| match ((x * y) % 7, k) {
+            (0, _) => 0.0,
+            (3, 2) => 0.5,
+            (_, 2) => 1.0,
+            _ => 0.0,
+        });
+        let depth = Image::from_fn(w, h, 1, |x, _, _| 1.0 + (x / 4) as f32 * 0.2);
+        set.set(Feature::Albedo, albedo).unwrap();
+        set.set(Feature::Normal, normal).unwrap();
+        set.set(Feature::Depth, depth).unwrap();
+        let surface = Surface::new(&set, (w, h));
+        let planes = surface.planes(w * h);
+        let key = |i: usize| std::array::from_fn(|k| planes[k][i]);
+        for radius in [1, 2, 3] {
+            let mates = surface.mates(w, h, radius);
+            for i in 0..w * h {
+                let expected: Vec<usize> = window(i % w, i / w, w, h, radius as isize)
+                    .filter(|&j| same_key(&key(i), &key(j)))
+                    .collect();
+                assert_eq!(
+                    mates.of(i).collect::<Vec<_>>(),
+                    expected,
+                    "pixel {i}, radius {radius}"
+                );
+            }
+        }
     }
 
     #[test]
