@@ -19,10 +19,11 @@ one run, median of 5. This script:
 
 Usage (from the repository root, after `cargo build --release`):
 
-    python3 scripts/speed_vs_oidn.py [--runs 5] [--cache target/speed-set] [--gsid target/release/gsid]
+    python3 scripts/speed_vs_oidn.py [--runs 5] [--cache target/speed-set] [--gsid target/release/gsid ...]
         [--pipelines balanced full] [--json PATH]
 
-`--gsid` times another build (e.g. an older commit's binary) against the same set and OIDN run.
+`--gsid A B` times several builds (e.g. an older commit's binary and this tree's) in the same run, so
+before and after see the same load; their runs alternate, and rows name the binary.
 Errors (missing binary, packages, failed render or denoise) print one line and exit with code 2.
 """
 
@@ -105,15 +106,18 @@ def main(argv=None):
     p = argparse.ArgumentParser(description="gsid balanced/full against OIDN at 1024×1024, 4 spp (see the docstring).")
     p.add_argument("--runs", type=int, default=5, help="timed runs of each method (median)")
     p.add_argument("--cache", default=str(ROOT / "target" / "speed-set"), help="folder of the cached render set")
-    p.add_argument("--gsid", default=str(ROOT / "target" / "release" / "gsid"), help="gsid binary to time")
+    p.add_argument("--gsid", nargs="+", default=[str(ROOT / "target" / "release" / "gsid")],
+                   help="gsid binaries to time (the first also renders the set)")
     p.add_argument("--pipelines", nargs="+", default=["balanced", "full"], help="gsid pipelines to time")
     p.add_argument("--json", metavar="PATH", help="also write the header and times as JSON")
     args = p.parse_args(argv)
     if args.runs < 1:
         fail("--runs must be at least 1")
-    gsid = Path(args.gsid).resolve()
-    if not (gsid.is_file() and os.access(gsid, os.X_OK)):
-        fail(f"no gsid binary at {gsid}: run cargo build --release (or pass --gsid)")
+    binaries = [Path(g).resolve() for g in args.gsid]
+    for gsid in binaries:
+        if not (gsid.is_file() and os.access(gsid, os.X_OK)):
+            fail(f"no gsid binary at {gsid}: run cargo build --release (or pass --gsid)")
+    gsid = binaries[0]
     try:
         import numpy as np  # noqa: F401
         import OpenEXR  # noqa: F401
@@ -136,7 +140,7 @@ def main(argv=None):
         "load_average_start": [round(x, 2) for x in os.getloadavg()],
         "oidn": f"{oidn_version // 10000}.{oidn_version // 100 % 100}.{oidn_version % 100}",
         "oidn_threads": device.get_int("numThreads"),
-        "gsid_binary": str(gsid),
+        "gsid_binaries": [str(g) for g in binaries],
         "gsid_commit": cd.git_commit(),
         "runs": args.runs,
         "set": str(setdir),
@@ -154,15 +158,21 @@ def main(argv=None):
         rows["OIDN process (one-shot python3)"] = oidn_process(setdir, tmp / "oidn-process.exr", args.runs)
         linked = cd.linked_set(setdir, cd.GSID_BUFFERS, tmp / "set")
         for name in args.pipelines:
-            cd.note(f"gsid {name} ...")
-            rows[f"gsid `{name}` (process)"] = cd.gsid_denoise(gsid, linked, name, tmp / f"{name}.exr", args.runs)
+            times = {g: [] for g in binaries}
+            for _ in range(args.runs):
+                for g in binaries:
+                    cd.note(f"gsid {name} ({g}) ...")
+                    times[g] += cd.gsid_denoise(g, linked, name, tmp / f"{name}.exr", 1)[1]
+            for g in binaries:
+                label = f" {g}" if len(binaries) > 1 else ""
+                rows[f"gsid `{name}` (process){label}"] = (statistics.median(times[g]), times[g])
     header["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
 
     filt = rows["OIDN filter (execute only)"][0]
     proc = rows["OIDN process (one-shot python3)"][0]
     print(f"{header['cpu']}, {header['cores']} cores; load average {header['load_average_start'][0]:.2f} at start, "
           f"{header['load_average_end'][0]:.2f} at end. OIDN {header['oidn']} ({header['oidn_threads']} threads), "
-          f"gsid {gsid} (tree at {header['gsid_commit']}). {SIZE}×{SIZE}, {SPP} spp, {setdir}; "
+          f"gsid {', '.join(map(str, binaries))} (tree at {header['gsid_commit']}). {SIZE}×{SIZE}, {SPP} spp, {setdir}; "
           f"median of {args.runs}.")
     print()
     print("| method | median s | runs (s) | ÷ OIDN filter | ÷ OIDN process |")
