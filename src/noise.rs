@@ -20,11 +20,13 @@ use crate::render_set::{Feature, FeatureSet};
 
 /// Radius of the window of the raw estimate (5×5).
 const RAW_RADIUS: isize = 2;
-const RAW_TAPS: usize = (2 * RAW_RADIUS as usize + 1).pow(2);
+const RAW_SIDE: usize = 2 * RAW_RADIUS as usize + 1;
 /// Radius of the window the raw estimates are averaged over (7×7).
 const SMOOTH_RADIUS: isize = 3;
 /// Fewest surface-mates (the pixel included) a raw estimate needs.
 const MIN_MATES: usize = 4;
+/// Features compared per pixel by `same_key`.
+const KEYS: usize = 8;
 /// Keeps remodulation finite on black albedo.
 const ALBEDO_EPS: f32 = 0.02;
 
@@ -56,31 +58,93 @@ impl<'a> Surface<'a> {
         }
     }
 
-    #[inline]
-    fn same(&self, i: usize, j: usize) -> bool {
-        if let Some(a) = self.albedo {
-            let (p, q) = (&a[3 * i..3 * i + 3], &a[3 * j..3 * j + 3]);
-            if (0..3).any(|k| (p[k] - q[k]).abs() > ALBEDO_TOLERANCE) {
-                return false;
+    /// The features `same_key` compares, one plane each: albedo (3), normal (3), depth, normal
+    /// known (1/0). A missing feature is zeros, which every pair passes, as when it is not compared.
+    fn planes(&self, n: usize) -> [Vec<f32>; KEYS] {
+        let plane = |src: Option<&[f32]>, stride: usize, k: usize| match src {
+            Some(v) => v.iter().skip(k).step_by(stride).copied().collect(),
+            None => vec![0.0; n],
+        };
+        let (a, nrm, z) = (self.albedo, self.normal, self.depth);
+        let mut planes: [Vec<f32>; KEYS] = [
+            plane(a, 3, 0),
+            plane(a, 3, 1),
+            plane(a, 3, 2),
+            plane(nrm, 3, 0),
+            plane(nrm, 3, 1),
+            plane(nrm, 3, 2),
+            plane(z, 1, 0),
+            Vec::new(),
+        ];
+        planes[7] = (0..n)
+            .map(|i| {
+                let known = planes[3][i] != 0.0 || planes[4][i] != 0.0 || planes[5][i] != 0.0;
+                if known {
+                    1.0
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        planes
+    }
+
+    /// For every pixel, which pixels of its window of `radius` (at most 3) lie on its surface.
+    /// `same_key` is symmetric, so each pair is tested once: the forward half of every window
+    /// first, then the backward half read from the neighbours' forward halves. Row by row and
+    /// cell by cell, so the tests run over contiguous runs of pixels.
+    fn mates(&self, w: usize, h: usize, radius: usize) -> Mates {
+        assert!(
+            radius <= 3,
+            "a window of radius {radius} has more cells than a u64 has bits"
+        );
+        let mut mates = Mates::new(w, radius);
+        let planes = self.planes(w * h);
+        let last = (mates.side * mates.side - 1) as u32;
+        let (forward, backward): (Vec<_>, Vec<_>) = mates
+            .offsets()
+            .partition(|&(_, dx, dy)| dy > 0 || (dy == 0 && dx >= 0));
+        // For row y and cell (dx, dy): the columns whose neighbour is inside, and that
+        // neighbour's index at the first of them.
+        let run = |y: usize, dx: isize, dy: isize| {
+            let ny = y as isize + dy;
+            let lo = (-dx).max(0) as usize;
+            let hi = (w as isize - dx).clamp(0, w as isize) as usize;
+            (ny >= 0 && (ny as usize) < h && lo < hi)
+                .then(|| (lo, hi, (ny * w as isize + lo as isize + dx) as usize))
+        };
+        let row = w.max(1);
+        let mut fwd = vec![0u64; w * h];
+        fwd.par_chunks_mut(row).enumerate().for_each(|(y, bits)| {
+            for &(bit, dx, dy) in &forward {
+                let Some((lo, hi, j0)) = run(y, dx, dy) else {
+                    continue;
+                };
+                let (i0, n) = (y * w + lo, hi - lo);
+                let p: [&[f32]; KEYS] = std::array::from_fn(|k| &planes[k][i0..i0 + n]);
+                let q: [&[f32]; KEYS] = std::array::from_fn(|k| &planes[k][j0..j0 + n]);
+                for (x, b) in bits[lo..hi].iter_mut().enumerate() {
+                    let same = same_key(
+                        &std::array::from_fn(|k| p[k][x]),
+                        &std::array::from_fn(|k| q[k][x]),
+                    );
+                    *b |= (same as u64) << bit;
+                }
             }
-        }
-        if let Some(n) = self.normal {
-            let (p, q) = (&n[3 * i..3 * i + 3], &n[3 * j..3 * j + 3]);
-            let dot = p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
-            let known = |v: &[f32]| v.iter().any(|&x| x != 0.0);
-            // Two unknown normals (misses, or renderers without a normal) match.
-            if known(p) != known(q) || (known(p) && dot < NORMAL_COS) {
-                return false;
+        });
+        let mut bits = fwd.clone();
+        bits.par_chunks_mut(row).enumerate().for_each(|(y, bits)| {
+            for &(bit, dx, dy) in &backward {
+                let Some((lo, hi, j0)) = run(y, dx, dy) else {
+                    continue;
+                };
+                for (b, &f) in bits[lo..hi].iter_mut().zip(&fwd[j0..j0 + hi - lo]) {
+                    *b |= (f >> (last - bit) & 1) << bit;
+                }
             }
-        }
-        if let Some(z) = self.depth {
-            let (zi, zj) = (z[i], z[j]);
-            let scale = zi.max(zj);
-            if scale > 0.0 && (zi - zj).abs() > DEPTH_TOLERANCE * scale {
-                return false;
-            }
-        }
-        true
+        });
+        mates.bits = bits;
+        mates
     }
 
     /// Pixel i's albedo + ε per channel (1 without albedo): colour divided by it is demodulated.
@@ -100,6 +164,76 @@ impl<'a> Surface<'a> {
             out[k] = v / (s[k] * s[k]);
         }
         out
+    }
+}
+
+/// Whether two pixels lie on one surface (their `Surface::planes`): albedo within
+/// `ALBEDO_TOLERANCE` per channel, normals both unknown or both known and within `NORMAL_COS`,
+/// depth within `DEPTH_TOLERANCE` of the larger. Symmetric in its arguments.
+#[inline(always)]
+fn same_key(p: &[f32; KEYS], q: &[f32; KEYS]) -> bool {
+    // `|` and `&`, not `||` and `&&`: no branches, so runs of pixels are tested in vector lanes.
+    let albedo = ((p[0] - q[0]).abs() > ALBEDO_TOLERANCE)
+        | ((p[1] - q[1]).abs() > ALBEDO_TOLERANCE)
+        | ((p[2] - q[2]).abs() > ALBEDO_TOLERANCE);
+    let dot = p[3] * q[3] + p[4] * q[4] + p[5] * q[5];
+    let known = p[7] != 0.0;
+    // Two unknown normals (misses, or renderers without a normal) match.
+    let normal = (known != (q[7] != 0.0)) | (known & (dot < NORMAL_COS));
+    let (zi, zj) = (p[6], q[6]);
+    let scale = zi.max(zj);
+    let depth = (scale > 0.0) & ((zi - zj).abs() > DEPTH_TOLERANCE * scale);
+    !(albedo | normal | depth)
+}
+
+/// Per pixel, a bit per cell of its (2·radius + 1)² window, in raster order: set when that pixel
+/// is inside the image and on the same surface. Computed once, read by every window loop.
+struct Mates {
+    bits: Vec<u64>,
+    side: usize,
+    /// Pixel index offset of every bit's cell.
+    offset: Vec<isize>,
+}
+
+impl Mates {
+    fn new(w: usize, radius: usize) -> Self {
+        let side = 2 * radius + 1;
+        let r = radius as isize;
+        let offset = (0..side * side)
+            .map(|b| (b / side) as isize - r)
+            .zip((0..side * side).map(|b| (b % side) as isize - r))
+            .map(|(dy, dx)| dy * w as isize + dx)
+            .collect();
+        Mates {
+            bits: Vec::new(),
+            side,
+            offset,
+        }
+    }
+
+    /// Every cell of the window: (bit, dx, dy).
+    fn offsets(&self) -> impl Iterator<Item = (u32, isize, isize)> + '_ {
+        let r = (self.side / 2) as isize;
+        (0..self.side * self.side).map(move |b| {
+            (
+                b as u32,
+                (b % self.side) as isize - r,
+                (b / self.side) as isize - r,
+            )
+        })
+    }
+
+    /// Pixel i's surface-mates, in raster order of its window.
+    #[inline]
+    fn of(&self, i: usize) -> impl Iterator<Item = usize> + '_ {
+        let mut m = self.bits[i];
+        std::iter::from_fn(move || {
+            (m != 0).then(|| {
+                let b = m.trailing_zeros();
+                m &= m - 1;
+                (i as isize + self.offset[b as usize]) as usize
+            })
+        })
     }
 }
 
@@ -148,15 +282,16 @@ pub fn estimate(color: &Image, features: &FeatureSet) -> Image {
             std::array::from_fn(|k| c[3 * i + k] as f64 / s[k])
         })
         .collect();
+    let mates = surface.mates(w, h, SMOOTH_RADIUS as usize);
     let raw: Vec<([f64; 3], usize)> = (0..w * h)
         .into_par_iter()
-        .map(|i| pair_spread(&flat, &surface, i, w, h))
+        .map(|i| pair_spread(&flat, &mates, i, w))
         .collect();
-    smooth(color, &surface, &raw)
+    smooth(color, &surface, &mates, &raw)
 }
 
 /// Pairs of adjacent pixels a raw estimate uses: all horizontal and vertical pairs of the window.
-const MAX_PAIRS: usize = 2 * RAW_TAPS;
+const MAX_PAIRS: usize = 2 * RAW_SIDE * (RAW_SIDE - 1);
 /// The share of the largest squared differences left out: pairs across an edge the features do
 /// not show (a light's rim, a shadow's) and fireflies, which are not the noise a filter should
 /// follow.
@@ -167,54 +302,35 @@ const TRIMMED_CHI2_MEAN: f64 = 0.437_724_594_903_639;
 /// Raw estimate at pixel `i`: a trimmed mean of the squared differences of adjacent surface-mates
 /// in its window (brought to `i`'s albedo), which a smooth change of light barely enters; with
 /// its number of pairs kept (0: too few mates).
-fn pair_spread(
-    flat: &[[f64; 3]],
-    surface: &Surface,
-    i: usize,
-    w: usize,
-    h: usize,
-) -> ([f64; 3], usize) {
-    let (x, y) = ((i % w) as isize, (i / w) as isize);
+fn pair_spread(flat: &[[f64; 3]], mates: &Mates, i: usize, w: usize) -> ([f64; 3], usize) {
+    let m = mates.bits[i];
+    let (side, c) = (mates.side as isize, (mates.side / 2) as isize);
     let r = RAW_RADIUS;
-    let inside = |nx: isize, ny: isize| {
-        (x - r..=x + r).contains(&nx)
-            && (y - r..=y + r).contains(&ny)
-            && nx >= 0
-            && ny >= 0
-            && (nx as usize) < w
-            && (ny as usize) < h
-    };
-    let mut mate = [false; RAW_TAPS];
-    let side = 2 * r + 1;
-    let slot = |nx: isize, ny: isize| ((ny - y + r) * side + (nx - x + r)) as usize;
-    let mut mates = 0;
-    for ny in y - r..=y + r {
-        for nx in x - r..=x + r {
-            if inside(nx, ny) && surface.same(i, ny as usize * w + nx as usize) {
-                mate[slot(nx, ny)] = true;
-                mates += 1;
-            }
+    let mate = |dx: isize, dy: isize| (m >> ((dy + c) * side + dx + c)) & 1 == 1;
+    let mut count = 0;
+    for dy in -r..=r {
+        for dx in -r..=r {
+            count += mate(dx, dy) as usize;
         }
     }
-    if mates < MIN_MATES {
+    if count < MIN_MATES {
         return ([0.0; 3], 0);
     }
-    let mut d2 = [[0.0f64; MAX_PAIRS]; 3];
+    let mut d2 = [[0i64; MAX_PAIRS]; 3];
     let mut n = 0;
-    for ny in y - r..=y + r {
-        for nx in x - r..=x + r {
-            if !inside(nx, ny) || !mate[slot(nx, ny)] {
+    for dy in -r..=r {
+        for dx in -r..=r {
+            if !mate(dx, dy) {
                 continue;
             }
-            let j = ny as usize * w + nx as usize;
-            for (qx, qy) in [(nx + 1, ny), (nx, ny + 1)] {
-                if !inside(qx, qy) || !mate[slot(qx, qy)] {
+            let j = (i as isize + dy * w as isize + dx) as usize;
+            for (qx, qy, q) in [(dx + 1, dy, j + 1), (dx, dy + 1, j + w)] {
+                if qx > r || qy > r || !mate(qx, qy) {
                     continue;
                 }
-                let q = qy as usize * w + qx as usize;
                 for (k, row) in d2.iter_mut().enumerate() {
                     let d = flat[j][k] - flat[q][k];
-                    row[n] = d * d;
+                    row[n] = total_key(d * d);
                 }
                 n += 1;
             }
@@ -229,12 +345,27 @@ fn pair_spread(
     (var, kept)
 }
 
-/// The mean of the `kept` smallest values (reorders `values`).
-pub(crate) fn trimmed_mean(values: &mut [f64], kept: usize) -> f64 {
+/// The mean of the `kept` smallest values, given as `total_key`s (reorders `values`). Selecting
+/// on the integer keys is the same selection as on the floats by `f64::total_cmp`, with a cheaper
+/// comparison.
+pub(crate) fn trimmed_mean(values: &mut [i64], kept: usize) -> f64 {
     if kept < values.len() {
-        values.select_nth_unstable_by(kept, f64::total_cmp);
+        values.select_nth_unstable(kept);
     }
-    values[..kept].iter().sum::<f64>() / kept as f64
+    values[..kept].iter().map(|&k| from_key(k)).sum::<f64>() / kept as f64
+}
+
+/// An integer whose order is `f64::total_cmp`'s (the same bit flip it makes).
+#[inline]
+pub(crate) fn total_key(x: f64) -> i64 {
+    let bits = x.to_bits() as i64;
+    bits ^ ((((bits >> 63) as u64) >> 1) as i64)
+}
+
+/// The inverse of `total_key` (the flip is its own inverse).
+#[inline]
+fn from_key(key: i64) -> f64 {
+    f64::from_bits((key ^ ((((key >> 63) as u64) >> 1) as i64)) as u64)
 }
 
 /// Smooths a variance the renderer measured (a `variance` buffer, noisy itself at few samples)
@@ -252,7 +383,7 @@ pub fn smooth_measured(color: &Image, features: &FeatureSet, variance: &Image) -
             )
         })
         .collect();
-    smooth(color, &surface, &raw)
+    smooth_measured_raw(color, &surface, &raw)
 }
 
 /// The variance of the full-sample mean from two half-sample means: E[(a − b)²] / 4, smoothed.
@@ -271,7 +402,18 @@ pub fn from_halves(color: &Image, features: &FeatureSet, a: &Image, b: &Image) -
             (surface.demodulate_variance(i, var), 1)
         })
         .collect();
-    smooth(color, &surface, &raw)
+    smooth_measured_raw(color, &surface, &raw)
+}
+
+/// [`smooth`] of per-pixel measured variances, with the surface-mates found here.
+fn smooth_measured_raw(color: &Image, surface: &Surface, raw: &[([f64; 3], usize)]) -> Image {
+    let (w, h) = color.dims();
+    smooth(
+        color,
+        surface,
+        &surface.mates(w, h, SMOOTH_RADIUS as usize),
+        raw,
+    )
 }
 
 /// A measured variance sample as used here: non-finite or negative counts as 0.
@@ -285,7 +427,7 @@ fn clean(v: f32) -> f64 {
 
 /// Averages raw per-pixel estimates (demodulated variance, degrees of freedom; 0 = none) over the
 /// same surface, and brings the result to each pixel's albedo.
-fn smooth(color: &Image, surface: &Surface, raw: &[([f64; 3], usize)]) -> Image {
+fn smooth(color: &Image, surface: &Surface, mates: &Mates, raw: &[([f64; 3], usize)]) -> Image {
     let (w, h) = color.dims();
     let c = color.data();
     let mut out = Image::new(w, h, 3);
@@ -296,9 +438,9 @@ fn smooth(color: &Image, surface: &Surface, raw: &[([f64; 3], usize)]) -> Image 
             let (x, y) = (i % w, i / w);
             let mut acc = [0.0f64; 3];
             let mut dof = 0usize;
-            for j in window(x, y, w, h, SMOOTH_RADIUS) {
+            for j in mates.of(i) {
                 let (v, d) = raw[j];
-                if d == 0 || !surface.same(i, j) {
+                if d == 0 {
                     continue;
                 }
                 for k in 0..3 {
@@ -375,6 +517,7 @@ pub fn keep_weights(
     let (w, h) = color.dims();
     let surface = Surface::new(features, (w, h));
     let (c, f, v) = (color.data(), filtered.data(), variance.data());
+    let mates = surface.mates(w, h, BLEND_RADIUS as usize);
     let diff2: Vec<f64> = (0..w * h)
         .into_par_iter()
         .map(|i| {
@@ -390,17 +533,19 @@ pub fn keep_weights(
     (0..w * h)
         .into_par_iter()
         .map(|i| {
-            let (x, y) = (i % w, i / w);
-            let mut near = [0.0f64; BLEND_TAPS];
+            let var = (0..3).map(|k| clean(v[3 * i + k])).sum::<f64>() / 3.0;
+            if var <= 0.0 {
+                return 0.0;
+            }
+            let mut near = [0i64; BLEND_TAPS];
             let mut n = 0;
-            for j in window(x, y, w, h, BLEND_RADIUS) {
-                if surface.same(i, j) && diff2[j].is_finite() {
-                    near[n] = diff2[j];
+            for j in mates.of(i) {
+                if diff2[j].is_finite() {
+                    near[n] = total_key(diff2[j]);
                     n += 1;
                 }
             }
-            let var = (0..3).map(|k| clean(v[3 * i + k])).sum::<f64>() / 3.0;
-            if var <= 0.0 || n == 0 {
+            if n == 0 {
                 return 0.0;
             }
             // Trimmed as the estimate is, so that where the filter removed only noise the two agree.
@@ -438,6 +583,51 @@ mod tests {
             let u: f32 = (0..12).map(|_| uniform()).sum::<f32>() - 6.0;
             level + std * u
         })
+    }
+
+    #[test]
+    fn mates_are_the_pairwise_test_in_window_order() {
+        let (w, h) = (13, 9);
+        let mut set = FeatureSet::default();
+        let albedo = Image::from_fn(
+            w,
+            h,
+            3,
+            |x, y, k| {
+                if (x + 2 * y + k) % 5 < 2 {
+                    0.8
+                } else {
+                    0.3
+                }
+            },
+        );
+        // Some unknown normals, and some too short to match themselves.
+        let normal = Image::from_fn(w, h, 3, |x, y, k| match ((x * y) % 7, k) {
+            (0, _) => 0.0,
+            (3, 2) => 0.5,
+            (_, 2) => 1.0,
+            _ => 0.0,
+        });
+        let depth = Image::from_fn(w, h, 1, |x, _, _| 1.0 + (x / 4) as f32 * 0.2);
+        set.set(Feature::Albedo, albedo).unwrap();
+        set.set(Feature::Normal, normal).unwrap();
+        set.set(Feature::Depth, depth).unwrap();
+        let surface = Surface::new(&set, (w, h));
+        let planes = surface.planes(w * h);
+        let key = |i: usize| std::array::from_fn(|k| planes[k][i]);
+        for radius in [1, 2, 3] {
+            let mates = surface.mates(w, h, radius);
+            for i in 0..w * h {
+                let expected: Vec<usize> = window(i % w, i / w, w, h, radius as isize)
+                    .filter(|&j| same_key(&key(i), &key(j)))
+                    .collect();
+                assert_eq!(
+                    mates.of(i).collect::<Vec<_>>(),
+                    expected,
+                    "pixel {i}, radius {radius}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -12,7 +12,7 @@
 use rayon::prelude::*;
 
 use crate::image::Image;
-use crate::noise::trimmed_mean;
+use crate::noise::{total_key, trimmed_mean};
 
 /// Radius of the window the variance is read from (5×5, as the colour's raw estimate).
 const VAR_RADIUS: isize = 2;
@@ -128,12 +128,12 @@ pub fn variance(img: &Image, kind: Kind, keep: f64) -> Vec<f32> {
                 return 0.0;
             }
             let kept = ((n as f64 * keep) as usize).max(1);
-            let mut d2 = [0.0f64; MAX_PAIRS];
+            let mut d2 = [0i64; MAX_PAIRS];
             let mut total = 0.0;
             for k in 0..c {
                 for (slot, &(j, q)) in d2.iter_mut().zip(&pairs[..n]) {
                     let d = img.pixel(j)[k] as f64 - img.pixel(q)[k] as f64;
-                    *slot = d * d;
+                    *slot = total_key(d * d);
                 }
                 total += trimmed_mean(&mut d2[..n], kept) / unit;
             }

@@ -243,22 +243,40 @@ fn guided_expand(c: &Image, fine: &Image, coarse_guide: &Image) -> Image {
         .par_chunks_mut(3 * w.max(1))
         .enumerate()
         .for_each(|(y, row)| {
+            let fy = (y as f32 + 0.5) * ch as f32 / h as f32 - 0.5;
+            let y0 = fy.floor() as isize;
+            // The spatial weights of the 4×4 taps depend only on the taps' offsets, which repeat
+            // along a row (two patterns at an exact 2× EXPAND): kept for the last offsets seen.
+            let mut cached: Option<([f32; 4], [[f32; 4]; 4])> = None;
             for x in 0..w {
                 // Fine pixel centre in coarse pixel coordinates.
                 let fx = (x as f32 + 0.5) * cw as f32 / w as f32 - 0.5;
-                let fy = (y as f32 + 0.5) * ch as f32 / h as f32 - 0.5;
-                let (x0, y0) = (fx.floor() as isize, fy.floor() as isize);
+                let x0 = fx.floor() as isize;
+                let dxs: [f32; 4] = std::array::from_fn(|a| (x0 - 1 + a as isize) as f32 - fx);
+                let spatial = match cached {
+                    Some((d, s)) if d.map(f32::to_bits) == dxs.map(f32::to_bits) => s,
+                    _ => {
+                        let s = std::array::from_fn(|b| {
+                            let dy = (y0 - 1 + b as isize) as f32 - fy;
+                            std::array::from_fn(|a| {
+                                let dx = dxs[a];
+                                gaussian((dx * dx + dy * dy).sqrt() as f64) as f32
+                            })
+                        });
+                        cached = Some((dxs, s));
+                        s
+                    }
+                };
                 let g = fine.at(x, y);
                 let (mut sum, mut plain) = ([0.0f32; 3], [0.0f32; 3]);
                 let (mut wsum, mut psum) = (0.0f32, 0.0f32);
-                for qy in y0 - 1..=y0 + 2 {
-                    for qx in x0 - 1..=x0 + 2 {
+                for (b, qy) in (y0 - 1..=y0 + 2).enumerate() {
+                    for (a, qx) in (x0 - 1..=x0 + 2).enumerate() {
                         if qx < 0 || qy < 0 || qx >= cw as isize || qy >= ch as isize {
                             continue;
                         }
                         let (qx, qy) = (qx as usize, qy as usize);
-                        let (dx, dy) = (qx as f32 - fx, qy as f32 - fy);
-                        let spatial = gaussian((dx * dx + dy * dy).sqrt() as f64) as f32;
+                        let spatial = spatial[b][a];
                         let q = coarse_guide.at(qx, qy);
                         let d2 =
                             ((g[0] - q[0]).powi(2) + (g[1] - q[1]).powi(2) + (g[2] - q[2]).powi(2))

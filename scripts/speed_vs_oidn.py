@@ -1,0 +1,191 @@
+"""Speed of gsid's `balanced` and `full` against Intel Open Image Denoise on one 1024×1024 render at 4 spp.
+
+Issue 13 asks for `balanced` no slower than OIDN's CPU filter and `full` at most 2.5× it, side by side in
+one run, median of 5. This script:
+
+  1. renders the set once (cached in `--cache`, default target/speed-set): fixtures/textured/scene.toml
+     with width and height set to 1024, `gsid render SCENE -o DIR --spp 4 --reference-spp 0`; a cached set
+     is reused when its scene file is unchanged;
+  2. times, in one run and on the same colour + albedo + normal (+ depth for gsid) buffers:
+       * OIDN (pyoidn; the RT filter, hdr, albedo + normal, CPU device, set up exactly as
+         scripts/compare_denoisers.py does): "filter" is oidnExecuteFilter alone on a committed filter,
+         "process" a fresh python3 that imports pyoidn, reads the EXRs, denoises once and writes the EXR;
+       * gsid `balanced` and `full`: the whole `gsid denoise SET --pipeline NAME -o OUT.exr --quiet`
+         process, default threads, on a folder that links only color/albedo/normal/depth;
+     each the median of `--runs` (default 5);
+  3. prints a markdown table with every time's ratio to OIDN's filter and to OIDN's process time, under
+     a header with the CPU, core count and the load average at start and end (a shared machine slows
+     every figure).
+
+Usage (from the repository root, after `cargo build --release`):
+
+    python3 scripts/speed_vs_oidn.py [--runs 5] [--cache target/speed-set] [--gsid target/release/gsid ...]
+        [--pipelines balanced full] [--json PATH]
+
+`--gsid A B` times several builds (e.g. an older commit's binary and this tree's) in the same run, so
+before and after see the same load; their runs alternate, and rows name the binary.
+Errors (missing binary, packages, failed render or denoise) print one line and exit with code 2.
+"""
+
+import argparse
+import filecmp
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import compare_denoisers as cd  # noqa: E402  (the same OIDN setup, EXR I/O and machine header)
+
+ROOT = cd.ROOT
+SCENE = ROOT / "fixtures" / "textured" / "scene.toml"
+SIZE = 1024
+SPP = 4
+
+
+def fail(message, code=2):
+    print(f"speed_vs_oidn: error: {message}", file=sys.stderr)
+    sys.exit(code)
+
+
+def sized_scene(into):
+    """fixtures/textured/scene.toml with its [render] width and height set to SIZE."""
+    lines, in_render = [], False
+    for line in SCENE.read_text().splitlines():
+        stripped = line.strip()
+        if stripped.startswith("["):
+            in_render = stripped == "[render]"
+        key = stripped.split("=", 1)[0].strip()
+        if in_render and key in ("width", "height"):
+            line = f"{key} = {SIZE}"
+        lines.append(line)
+    into.write_text("\n".join(lines) + "\n")
+
+
+def render_set(gsid, cache):
+    """The cached render set folder (rendered when missing or when the scene changed)."""
+    cache.mkdir(parents=True, exist_ok=True)
+    scene = cache / "scene.toml"
+    fresh = cache / "scene.new.toml"
+    sized_scene(fresh)
+    setdir = cache / "render" / f"spp{SPP}"
+    if scene.is_file() and filecmp.cmp(scene, fresh, shallow=False) and (setdir / "color.exr").is_file():
+        fresh.unlink()
+        return setdir
+    shutil.rmtree(cache / "render", ignore_errors=True)
+    fresh.replace(scene)
+    cd.note(f"rendering {SIZE}×{SIZE} at {SPP} spp into {cache / 'render'} (once) ...")
+    cmd = [str(gsid), "render", str(scene), "-o", str(cache / "render"), "--spp", str(SPP),
+           "--reference-spp", "0", "--quiet"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+    if proc.returncode != 0:
+        scene.unlink(missing_ok=True)
+        fail(f"{' '.join(cmd)}: {proc.stderr.strip()}")
+    return setdir
+
+
+def oidn_process(setdir, out, runs):
+    """Median wall time of a fresh python3 doing one whole OIDN denoise (compare_denoisers --oidn-once)."""
+    times = []
+    for _ in range(runs):
+        start = time.perf_counter()
+        proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "compare_denoisers.py"), "--oidn-once",
+                               str(setdir), str(out)], capture_output=True, text=True, cwd=ROOT)
+        times.append(time.perf_counter() - start)
+        if proc.returncode != 0:
+            fail(f"one-shot OIDN process on {setdir}: {proc.stderr.strip()}")
+    return statistics.median(times), times
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description="gsid balanced/full against OIDN at 1024×1024, 4 spp (see the docstring).")
+    p.add_argument("--runs", type=int, default=5, help="timed runs of each method (median)")
+    p.add_argument("--cache", default=str(ROOT / "target" / "speed-set"), help="folder of the cached render set")
+    p.add_argument("--gsid", nargs="+", default=[str(ROOT / "target" / "release" / "gsid")],
+                   help="gsid binaries to time (the first also renders the set)")
+    p.add_argument("--pipelines", nargs="+", default=["balanced", "full"], help="gsid pipelines to time")
+    p.add_argument("--json", metavar="PATH", help="also write the header and times as JSON")
+    args = p.parse_args(argv)
+    if args.runs < 1:
+        fail("--runs must be at least 1")
+    binaries = [Path(g).resolve() for g in args.gsid]
+    for gsid in binaries:
+        if not (gsid.is_file() and os.access(gsid, os.X_OK)):
+            fail(f"no gsid binary at {gsid}: run cargo build --release (or pass --gsid)")
+    gsid = binaries[0]
+    try:
+        import numpy as np  # noqa: F401
+        import OpenEXR  # noqa: F401
+        import pyoidn
+    except ImportError as e:
+        fail(f"missing Python package ({e}); run: pip install -r scripts/requirements-compare.txt")
+
+    setdir = render_set(gsid, Path(args.cache).resolve())
+    for buf in cd.GSID_BUFFERS:
+        if not (setdir / f"{buf}.exr").is_file():
+            fail(f"render set {setdir}: no {buf}.exr")
+
+    device = pyoidn.Device(pyoidn.OIDN_DEVICE_TYPE_CPU)
+    device.commit()
+    cd.oidn_check(device, "CPU device creation")
+    oidn_version = device.get_int("version")
+    header = {
+        "cpu": cd.cpu_model(),
+        "cores": os.cpu_count(),
+        "load_average_start": [round(x, 2) for x in os.getloadavg()],
+        "oidn": f"{oidn_version // 10000}.{oidn_version // 100 % 100}.{oidn_version % 100}",
+        "oidn_threads": device.get_int("numThreads"),
+        "gsid_binaries": [str(g) for g in binaries],
+        "gsid_commit": cd.git_commit(),
+        "runs": args.runs,
+        "set": str(setdir),
+        "size": [SIZE, SIZE],
+        "spp": SPP,
+    }
+
+    rows = {}
+    with tempfile.TemporaryDirectory(prefix="speed_vs_oidn.") as tmp:
+        tmp = Path(tmp)
+        cd.note("OIDN filter ...")
+        rows["OIDN filter (execute only)"] = cd.oidn_denoise(device, setdir, tmp / "oidn.exr", args.runs)
+        device.release()
+        cd.note("OIDN process ...")
+        rows["OIDN process (one-shot python3)"] = oidn_process(setdir, tmp / "oidn-process.exr", args.runs)
+        linked = cd.linked_set(setdir, cd.GSID_BUFFERS, tmp / "set")
+        for name in args.pipelines:
+            times = {g: [] for g in binaries}
+            for _ in range(args.runs):
+                for g in binaries:
+                    cd.note(f"gsid {name} ({g}) ...")
+                    times[g] += cd.gsid_denoise(g, linked, name, tmp / f"{name}.exr", 1)[1]
+            for g in binaries:
+                label = f" {g}" if len(binaries) > 1 else ""
+                rows[f"gsid `{name}` (process){label}"] = (statistics.median(times[g]), times[g])
+    header["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
+
+    filt = rows["OIDN filter (execute only)"][0]
+    proc = rows["OIDN process (one-shot python3)"][0]
+    print(f"{header['cpu']}, {header['cores']} cores; load average {header['load_average_start'][0]:.2f} at start, "
+          f"{header['load_average_end'][0]:.2f} at end. OIDN {header['oidn']} ({header['oidn_threads']} threads), "
+          f"gsid {', '.join(map(str, binaries))} (tree at {header['gsid_commit']}). {SIZE}×{SIZE}, {SPP} spp, {setdir}; "
+          f"median of {args.runs}.")
+    print()
+    print("| method | median s | runs (s) | ÷ OIDN filter | ÷ OIDN process |")
+    print("| --- | --- | --- | --- | --- |")
+    for method, (median, times) in rows.items():
+        runs = " ".join(f"{t:.2f}" for t in times)
+        print(f"| {method} | {median:.3f} | {runs} | {median / filt:.2f}× | {median / proc:.2f}× |")
+    if args.json:
+        out = {"header": header, "rows": {m: {"median": t[0], "times": t[1]} for m, t in rows.items()}}
+        Path(args.json).write_text(json.dumps(out, indent=1) + "\n")
+        cd.note(f"wrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
