@@ -131,11 +131,17 @@ pub fn variance(img: &Image, kind: Kind, keep: f64) -> Vec<f32> {
             let mut d2 = [0i64; MAX_PAIRS];
             let mut total = 0.0;
             for k in 0..c {
+                let mut zeros = 0;
                 for (slot, &(j, q)) in d2.iter_mut().zip(&pairs[..n]) {
                     let d = img.pixel(j)[k] as f64 - img.pixel(q)[k] as f64;
                     *slot = total_key(d * d);
+                    zeros += usize::from(d == 0.0);
                 }
-                total += trimmed_mean(&mut d2[..n], kept) / unit;
+                // Squares are ≥ 0, so when the kept share is all zeros its mean is 0: the common
+                // case of a uniform albedo, without the selection.
+                if zeros < kept {
+                    total += trimmed_mean(&mut d2[..n], kept) / unit;
+                }
             }
             (total / c as f64) as f32
         })
@@ -181,9 +187,14 @@ pub fn filter(img: &Image, variance: &[f32], kind: Kind, p: &Params) -> Image {
         .for_each(|(band, rows)| {
             let y0 = band * BAND;
             let y1 = (y0 + BAND).min(h);
-            if !(y0 * w..y1 * w).any(active) {
+            // Only the columns an active pixel (and its patch) reaches are computed.
+            let Some(x_lo) = (0..w).find(|&x| (y0..y1).any(|y| active(y * w + x))) else {
                 return;
-            }
+            };
+            let x_hi = (0..w)
+                .rev()
+                .find(|&x| (y0..y1).any(|y| active(y * w + x)))
+                .expect("an active column exists");
             // Terms over the band's rows and columns widened by the patch radius.
             let (tw, th) = (w + 2 * f as usize, y1 - y0 + 2 * f as usize);
             let mut term = vec![0.0f64; tw * th];
@@ -194,7 +205,7 @@ pub fn filter(img: &Image, variance: &[f32], kind: Kind, p: &Params) -> Image {
                 for ox in -r..=r {
                     for ty in 0..th {
                         let py = y0 as isize + ty as isize - f;
-                        for tx in 0..tw {
+                        for tx in x_lo..=x_hi + 2 * f as usize {
                             let px = tx as isize - f;
                             let (a, b) = (clamp(px, py), clamp(px + ox, py + oy));
                             let (va, vb) = (variance[a] as f64, variance[b] as f64);
@@ -210,7 +221,7 @@ pub fn filter(img: &Image, variance: &[f32], kind: Kind, p: &Params) -> Image {
                     }
                     for ty in 0..th {
                         let row = &term[ty * tw..(ty + 1) * tw];
-                        for x in 0..w {
+                        for x in x_lo..=x_hi {
                             across[ty * w + x] = row[x..x + 2 * f as usize + 1].iter().sum();
                         }
                     }
@@ -219,7 +230,7 @@ pub fn filter(img: &Image, variance: &[f32], kind: Kind, p: &Params) -> Image {
                         if ny < 0 || ny >= h as isize {
                             continue;
                         }
-                        for x in 0..w {
+                        for x in x_lo..=x_hi {
                             let (i, nx) = (y * w + x, x as isize + ox);
                             if nx < 0 || nx >= w as isize || !active(i) {
                                 continue;
