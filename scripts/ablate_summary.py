@@ -17,17 +17,10 @@ import json
 import os
 import statistics
 import subprocess
-import sys
 import tempfile
 from concurrent.futures import ThreadPoolExecutor
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-FIXTURES = ["mitsuba-cornell", "cornell", "caustics", "textured", "detail"]
-
-
-def fail(message):
-    print(f"ablate_summary: {message}", file=sys.stderr)
-    sys.exit(2)
+from gsidscore import ALL_FIXTURES, ROOT, fail, parse_spps, require_gsid
 
 
 def ablate(gsid, setdir, pipeline, out):
@@ -42,14 +35,12 @@ def ablate(gsid, setdir, pipeline, out):
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--pipeline", default="full")
-    p.add_argument("--fixtures", default=",".join(FIXTURES))
+    p.add_argument("--fixtures", default=",".join(ALL_FIXTURES))
     p.add_argument("--spp", default="1,4,16,64")
     p.add_argument("--rows", default="", help="comma-separated substrings: only the variants containing one")
     a = p.parse_args()
-    gsid = os.path.join(ROOT, "target", "release", "gsid")
-    if not os.path.exists(gsid):
-        fail(f"{gsid}: not built (cargo build --release)")
-    fixtures, spps = a.fixtures.split(","), [int(s) for s in a.spp.split(",")]
+    gsid = str(require_gsid(False))
+    fixtures, spps = a.fixtures.split(","), parse_spps(a.spp)
     cells = [(fx, s) for s in spps for fx in fixtures]
     for fx, s in cells:
         if not os.path.isdir(os.path.join(ROOT, "fixtures", fx, f"spp{s}")):
@@ -62,14 +53,13 @@ def main():
     print(f"`gsid ablate --pipeline {a.pipeline}`, mean over {', '.join(fixtures)}: SSIM / relMSE (ΔSSIM)\n")
     print("| variant | " + " | ".join(f"{s} spp" for s in spps) + " |")
     print("| --- |" + " --- |" * len(spps))
-    first = tables[0]["rows"] if isinstance(tables[0], dict) else tables[0]
-    names = [row["variant"] for row in first]
+    names = [row["variant"] for row in tables[0]]
     for name in names:
         if wanted and not any(w in name for w in wanted) and name != names[0]:
             continue
         cols = []
         for s in spps:
-            rows = [t["rows"] if isinstance(t, dict) else t for (fx, ss), t in zip(cells, tables) if ss == s]
+            rows = [t for (_, ss), t in zip(cells, tables) if ss == s]
             pick = [next(r for r in rs if r["variant"] == name) for rs in rows]
             base = [rs[0] for rs in rows]
             ssim = statistics.mean(r["ssim"] for r in pick)

@@ -131,6 +131,22 @@ impl Buffers {
         }
     }
 
+    /// The buffer if present with the expected channel count and the colour's size `dims`.
+    pub fn get_sized(
+        &self,
+        name: &str,
+        channels: usize,
+        dims: (usize, usize),
+    ) -> Result<Option<&Image>> {
+        match self.get_channels(name, channels)? {
+            Some(img) if img.dims() != dims => Err(Error::buffer(
+                name,
+                "does not match the colour buffer's size",
+            )),
+            other => Ok(other),
+        }
+    }
+
     /// The buffer, which must exist with the expected channel count.
     pub fn require_channels(&self, name: &str, channels: usize) -> Result<&Image> {
         self.require(name)?;

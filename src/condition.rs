@@ -276,8 +276,7 @@ impl Conditioning {
 
     /// The user's notes for what was changed, in order.
     pub fn notes(&self) -> Vec<String> {
-        let notes: Vec<String> = self.sanitized.summary().into_iter().collect();
-        notes
+        self.sanitized.summary().into_iter().collect()
     }
 
     /// Brings a radiance buffer filtered at [`Conditioning::scale`] back to the input's scale.

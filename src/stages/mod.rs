@@ -174,11 +174,7 @@ pub fn read_mask(
     let Some(name) = name else {
         return Ok(None);
     };
-    match buffers.get_channels(name, 1)? {
-        Some(m) if m.dims() != dims => Err(Error::buffer(
-            name,
-            "does not match the colour buffer's size",
-        )),
+    match buffers.get_sized(name, 1, dims)? {
         Some(m) => Ok(Some(m.data().iter().map(|&v| v > 0.5).collect())),
         None => {
             ctx.note(format!(
@@ -229,18 +225,12 @@ impl NoiseScaling {
         let Some(name) = self.noise.as_deref() else {
             return Ok(sigma);
         };
-        let variance = buffers.get_channels(name, 3)?.ok_or_else(|| {
+        let variance = buffers.get_sized(name, 3, color.dims())?.ok_or_else(|| {
             Error::buffer(
                 name,
                 "is required (the stage's `noise`) but missing; a `noise` stage writes it",
             )
         })?;
-        if variance.dims() != color.dims() {
-            return Err(Error::buffer(
-                name,
-                "does not match the colour buffer's size",
-            ));
-        }
         let level = crate::noise::tone_level(color, variance, exposure);
         // Above the reference level σ grows no further than MAX_GAIN×: at very high noise the
         // estimate also holds fine geometry taken for noise, and a larger σ would average it away.

@@ -68,15 +68,7 @@ impl NoiseStage {
     /// The renderer's own measurement of `color`'s noise, if the buffers hold one.
     fn measured(&self, buffers: &Buffers, color: &Image) -> Result<Option<Image>> {
         let features = buffers.features();
-        let sized = |name: &str| -> Result<Option<&Image>> {
-            match buffers.get_channels(name, 3)? {
-                Some(img) if img.dims() != color.dims() => Err(Error::buffer(
-                    name,
-                    "does not match the colour buffer's size",
-                )),
-                other => Ok(other),
-            }
-        };
+        let sized = |name: &str| buffers.get_sized(name, 3, color.dims());
         if let Some(v) = sized(NoiseInputs::VARIANCE)? {
             return Ok(Some(noise::smooth_measured(color, features, v)));
         }
