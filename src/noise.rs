@@ -296,8 +296,64 @@ const MAX_PAIRS: usize = 2 * RAW_SIDE * (RAW_SIDE - 1);
 /// not show (a light's rim, a shadow's) and fireflies, which are not the noise a filter should
 /// follow.
 const TRIM: f64 = 0.2;
-/// E[χ²₁ | below its 80th percentile]: a trimmed mean of (x_j − x_k)² is this times 2·variance.
-const TRIMMED_CHI2_MEAN: f64 = 0.437_724_594_903_639;
+/// Most values a trimmed mean here takes: the estimate's pairs (the blend's window has fewer).
+const MAX_TRIMMED: usize = MAX_PAIRS;
+
+/// E[mean of the `n − ⌊n·TRIM⌋` smallest of n iid χ²₁], for n = 0..=MAX_TRIMMED: a trimmed
+/// mean of n squared differences (x_j − x_k)² is this times 2·variance. Exact for every n, unlike
+/// the large-n limit [`trimmed_chi2_mean`]`(1 − TRIM)`: with fewer than 5 values nothing is trimmed
+/// and the mean is unbiased as it is (1, not 0.44).
+fn trimmed_chi2(n: usize) -> f64 {
+    static TABLE: std::sync::OnceLock<[f64; MAX_TRIMMED + 1]> = std::sync::OnceLock::new();
+    TABLE
+        .get_or_init(|| std::array::from_fn(|n| trimmed_chi2_of(n, n - (n as f64 * TRIM) as usize)))
+        [n.min(MAX_TRIMMED)]
+}
+
+/// E[mean of the `kept` smallest of n iid χ²₁] by its order-statistics integral: with X = Z²,
+/// E[Σ of the kept smallest] = n ∫ z² · 2φ(z) · P(Binomial(n − 1, P(|Z| < z)) < kept) dz, by
+/// Simpson's rule on [0, 12] (the integrand is below 1e-29 beyond).
+pub(crate) fn trimmed_chi2_of(n: usize, kept: usize) -> f64 {
+    if n == 0 || kept == 0 {
+        return 1.0;
+    }
+    const STEPS: usize = 4096;
+    const TOP: f64 = 12.0;
+    let h = TOP / STEPS as f64;
+    let mut sum = 0.0;
+    for s in 0..=STEPS {
+        let z = s as f64 * h;
+        let p = erf(z / std::f64::consts::SQRT_2);
+        // P(Binomial(n − 1, p) ≤ kept − 1), its terms by the pmf's recurrence in the log domain
+        // (the first term, (1 − p)^(n−1), underflows for large n).
+        let cdf = if p >= 1.0 {
+            if kept >= n {
+                1.0
+            } else {
+                0.0
+            }
+        } else {
+            let (lp, lq) = (p.ln(), (-p).ln_1p());
+            let mut log_term = (n - 1) as f64 * lq;
+            let mut cdf = 0.0;
+            for j in 0..kept.min(n) {
+                cdf += log_term.exp();
+                log_term += ((n - 1 - j) as f64 / (j + 1) as f64).ln() + lp - lq;
+            }
+            cdf
+        };
+        let density = 2.0 * (-0.5 * z * z).exp() / (2.0 * std::f64::consts::PI).sqrt();
+        let weight = if s == 0 || s == STEPS {
+            1.0
+        } else if s % 2 == 1 {
+            4.0
+        } else {
+            2.0
+        };
+        sum += weight * z * z * density * cdf.min(1.0);
+    }
+    n as f64 * sum * h / 3.0 / kept as f64
+}
 
 /// Raw estimate at pixel `i`: a trimmed mean of the squared differences of adjacent surface-mates
 /// in its window (brought to `i`'s albedo), which a smooth change of light barely enters; with
@@ -341,7 +397,7 @@ fn pair_spread(flat: &[[f64; 3]], mates: &Mates, i: usize, w: usize) -> ([f64; 3
     }
     let kept = n - ((n as f64 * TRIM) as usize);
     let var =
-        std::array::from_fn(|k| trimmed_mean(&mut d2[k][..n], kept) / (2.0 * TRIMMED_CHI2_MEAN));
+        std::array::from_fn(|k| trimmed_mean(&mut d2[k][..n], kept) / (2.0 * trimmed_chi2(n)));
     (var, kept)
 }
 
@@ -529,8 +585,6 @@ pub fn tone_level(color: &Image, variance: &Image, exposure: f32) -> f64 {
 
 /// Radius of the window the blend's error estimate averages over (5×5).
 const BLEND_RADIUS: isize = 2;
-/// How many noise variances above its input a pixel's filtered value may rise before it counts as leakage.
-const LEAK: f64 = 25.0;
 const BLEND_TAPS: usize = (2 * BLEND_RADIUS as usize + 1).pow(2);
 
 /// Per pixel, how much of `filtered` to keep over `color` (0..1): the Wiener weight
@@ -544,6 +598,7 @@ pub fn keep_weights(
     variance: &Image,
     features: &FeatureSet,
     tolerance: f64,
+    leak: f64,
 ) -> Vec<f32> {
     let (w, h) = color.dims();
     let surface = Surface::new(features, (w, h));
@@ -581,7 +636,7 @@ pub fn keep_weights(
             }
             // Trimmed as the estimate is, so that where the filter removed only noise the two agree.
             let kept = n - ((n as f64 * TRIM) as usize);
-            let err = trimmed_mean(&mut near[..n], kept) / TRIMMED_CHI2_MEAN;
+            let err = trimmed_mean(&mut near[..n], kept) / trimmed_chi2(n);
             let keep = (tolerance * var / err.max(f64::MIN_POSITIVE)).min(1.0);
             // A pixel the filter made far brighter than its own noise allows took light from a
             // neighbour the features could not tell apart (an emitter beside the ceiling it lies
@@ -591,7 +646,7 @@ pub fn keep_weights(
                 .map(|k| (f[3 * i + k] as f64 - c[3 * i + k] as f64).max(0.0).powi(2))
                 .sum::<f64>()
                 / 3.0;
-            let leak = LEAK * var / gain.max(f64::MIN_POSITIVE);
+            let leak = leak * var / gain.max(f64::MIN_POSITIVE);
             keep.min(leak).min(1.0) as f32
         })
         .collect()
@@ -606,8 +661,138 @@ mod tests {
         assert!((trimmed_chi2_mean(0.5) - 0.142_651_835_488_518_54).abs() < 1e-9);
         assert!((trimmed_chi2_mean(0.8) - 0.437_724_594_903_639).abs() < 1e-9);
         assert!((trimmed_chi2_mean(1.0 - 1e-12) - 1.0).abs() < 1e-6);
-        // The estimate's constant is the same quantity at its own trim.
-        assert!((trimmed_chi2_mean(1.0 - TRIM) - TRIMMED_CHI2_MEAN).abs() < 1e-12);
+    }
+
+    /// A 9×9 flat image of colour 1 and noise variance 0.01 (σ 0.1), with a 2×2 patch of its own
+    /// albedo at (4..6, 4..6): the patch's pixels have 4 surface-mates each, the rest many.
+    fn blend_case() -> (Image, Image, FeatureSet) {
+        let (w, h) = (9, 9);
+        let patch = |x: usize, y: usize| (4..6).contains(&x) && (4..6).contains(&y);
+        let mut set = FeatureSet::default();
+        let albedo = Image::from_fn(w, h, 3, |x, y, _| if patch(x, y) { 0.2 } else { 0.8 });
+        set.set(Feature::Albedo, albedo).unwrap();
+        (
+            Image::filled(w, h, 3, 1.0),
+            Image::filled(w, h, 3, 0.01),
+            set,
+        )
+    }
+
+    #[test]
+    fn a_rise_beyond_two_sigma_is_taken_back() {
+        let (color, variance, set) = blend_case();
+        let leak = crate::stages::blend::BlendParams::default().leak;
+        // One pixel 3σ brighter than its input, one 3σ darker (a firefly removed).
+        let mut filtered = color.clone();
+        let (up, down) = (2 * 9 + 2, 6 * 9 + 7);
+        filtered.pixel_mut(up).fill(1.3);
+        filtered.pixel_mut(down).fill(0.7);
+        let keep = keep_weights(&color, &filtered, &variance, &set, 2.0, leak);
+        // κ = λ·v / gain²: a rise of exactly 2σ would be kept whole, a larger one shrinks as 1/gain.
+        let rise = keep[up] * 0.3;
+        assert!(rise <= 0.2, "kept a rise of {rise}, above 2σ = 0.2");
+        assert!(
+            (keep[up] - 4.0 * 0.01 / 0.09).abs() < 1e-4,
+            "keep {}",
+            keep[up]
+        );
+        assert_eq!(keep[down], 1.0, "a darker pixel is a firefly removed");
+    }
+
+    #[test]
+    fn few_surface_mates_keep_a_noise_only_change() {
+        // The filter moved every pixel by exactly σ, what removing noise alone does on average. On
+        // the 2×2 patch nothing of 4 mates is trimmed, so their mean of (f − c)² is v itself and all
+        // of the change is kept; the large-n constant read it as 2.3 v and gave an eighth back.
+        let (color, variance, set) = blend_case();
+        let filtered = Image::filled(9, 9, 3, 1.1);
+        let keep = keep_weights(&color, &filtered, &variance, &set, 2.0, 4.0);
+        for (x, y) in [(4, 4), (5, 4), (4, 5), (5, 5)] {
+            let k = keep[y * 9 + x];
+            assert!(k > 0.999, "patch pixel ({x}, {y}): keep {k}");
+        }
+    }
+
+    #[test]
+    fn trimmed_means_keep_the_smallest_values() {
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        for n in 1..=40usize {
+            for trial in 0..20 {
+                // Few distinct values (ties), or a firefly's dynamic range (1e-6 to 1e12).
+                let x: Vec<f64> = (0..n)
+                    .map(|_| {
+                        let r = next();
+                        if trial % 2 == 0 {
+                            (r % 4) as f64
+                        } else {
+                            10f64.powi((r % 19) as i32 - 6) * (1.0 + (r >> 40) as f64 / 1e7)
+                        }
+                    })
+                    .collect();
+                let mut sorted = x.clone();
+                sorted.sort_by(f64::total_cmp);
+                for kept in 1..=n {
+                    let want = sorted[..kept].iter().sum::<f64>() / kept as f64;
+                    let mut keys: Vec<i64> = x.iter().map(|&v| total_key(v)).collect();
+                    let got = trimmed_mean(&mut keys, kept);
+                    assert!(
+                        (got - want).abs() <= 1e-12 * want.abs(),
+                        "n {n} kept {kept}: {got} against {want}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn finite_trimmed_chi2_means_are_exact() {
+        // Nothing trimmed: the plain mean of χ²₁, whatever n.
+        for n in 1..5 {
+            assert!(
+                (trimmed_chi2(n) - 1.0).abs() < 1e-9,
+                "n = {n}: {}",
+                trimmed_chi2(n)
+            );
+        }
+        // n = 2, the smaller of two: E[min(Z₁², Z₂²)] = 1 − 2/π.
+        assert!((trimmed_chi2_of(2, 1) - (1.0 - 2.0 / std::f64::consts::PI)).abs() < 1e-9);
+        // Large n tends to the quantile formula.
+        let big = trimmed_chi2_of(2000, 1600);
+        assert!((big - trimmed_chi2_mean(0.8)).abs() < 2e-3, "{big}");
+        // Against simulation: 4 smallest of 5, and the 25-tap blend window (20 kept).
+        let mut state = 0x2545_F491_4F6C_DD1Du64;
+        let mut normal = move || {
+            let mut u = || {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+            };
+            let (a, b) = (u(), u());
+            (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
+        };
+        for n in [5usize, 25] {
+            let kept = n - (n as f64 * TRIM) as usize;
+            let trials = 200_000 / n * 5;
+            let mut total = 0.0;
+            for _ in 0..trials {
+                let mut x: Vec<f64> = (0..n).map(|_| normal().powi(2)).collect();
+                x.sort_by(f64::total_cmp);
+                total += x[..kept].iter().sum::<f64>() / kept as f64;
+            }
+            let simulated = total / trials as f64;
+            assert!(
+                (simulated - trimmed_chi2(n)).abs() < 0.01,
+                "n = {n}: simulated {simulated}, exact {}",
+                trimmed_chi2(n)
+            );
+        }
     }
 
     fn noisy_flat(w: usize, h: usize, level: f32, std: f32, seed: u64) -> Image {
@@ -726,7 +911,7 @@ mod tests {
         for bad in [f32::INFINITY, f32::NAN, -1.0] {
             let v = Image::filled(4, 4, 3, bad);
             assert_eq!(tone_level(&black, &v, 1.0), 0.0);
-            let keep = keep_weights(&black, &black, &v, &FeatureSet::default(), 1.5);
+            let keep = keep_weights(&black, &black, &v, &FeatureSet::default(), 1.5, 25.0);
             assert!(keep.iter().all(|k| *k == 0.0));
         }
     }

@@ -25,6 +25,9 @@ pub struct BlendParams {
     /// How far the filter's measured change may exceed the noise before the input comes back:
     /// slack for the error of both estimates.
     pub tolerance: f64,
+    /// How many noise variances above its input a pixel's filtered value may rise before it
+    /// counts as light leaked from a neighbour the features cannot tell apart.
+    pub leak: f64,
 }
 
 impl Default for BlendParams {
@@ -33,6 +36,7 @@ impl Default for BlendParams {
             original: COLOR.to_string(),
             noise: "noise".to_string(),
             tolerance: 1.5,
+            leak: 4.0,
         }
     }
 }
@@ -95,6 +99,7 @@ impl Stage for BlendStage {
             variance,
             buffers.features(),
             self.params.tolerance,
+            self.params.leak,
         );
         let mut out = filtered.par_clone();
         for (i, px) in out.data_mut().chunks_exact_mut(3).enumerate() {
