@@ -8,6 +8,8 @@
 //! original = "color"     # what it was filtered from
 //! noise = "noise"        # the original's variance (a `noise` stage's output)
 //! output = "out"
+//! tolerance = 1.5        # slack for the error of both estimates (the presets use 2)
+//! leak = 4.0             # a rise beyond √leak noise σ is light leaked from a neighbour
 //! ```
 
 use serde::{Deserialize, Serialize};
