@@ -722,13 +722,7 @@ mod tests {
 
     #[test]
     fn trimmed_means_keep_the_smallest_values() {
-        let mut state = 0x9E37_79B9_7F4A_7C15u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut next = xorshift(1);
         for n in 1..=40usize {
             for trial in 0..20 {
                 // Few distinct values (ties), or a firefly's dynamic range (1e-6 to 1e12).
@@ -773,14 +767,9 @@ mod tests {
         let big = trimmed_chi2_of(2000, 1600);
         assert!((big - trimmed_chi2_mean(0.8)).abs() < 2e-3, "{big}");
         // Against simulation: 4 smallest of 5, and the 25-tap blend window (20 kept).
-        let mut state = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = xorshift(2);
         let mut normal = move || {
-            let mut u = || {
-                state ^= state << 13;
-                state ^= state >> 7;
-                state ^= state << 17;
-                ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-            };
+            let mut u = || ((next() >> 11) as f64 + 0.5) / (1u64 << 53) as f64;
             let (a, b) = (u(), u());
             (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
         };
@@ -802,14 +791,20 @@ mod tests {
         }
     }
 
-    fn noisy_flat(w: usize, h: usize, level: f32, std: f32, seed: u64) -> Image {
+    /// A xorshift64 stream: the tests' random numbers, fixed by `seed`.
+    fn xorshift(seed: u64) -> impl FnMut() -> u64 {
         let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-        let mut uniform = move || {
+        move || {
             state ^= state << 13;
             state ^= state >> 7;
             state ^= state << 17;
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
+            state
+        }
+    }
+
+    fn noisy_flat(w: usize, h: usize, level: f32, std: f32, seed: u64) -> Image {
+        let mut next = xorshift(seed);
+        let mut uniform = move || (next() >> 40) as f32 / (1u64 << 24) as f32;
         Image::from_fn(w, h, 3, |_, _, _| {
             // Sum of 12 uniforms: near Gaussian, variance std².
             let u: f32 = (0..12).map(|_| uniform()).sum::<f32>() - 6.0;
