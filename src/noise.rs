@@ -318,7 +318,7 @@ fn trimmed_chi2(n: usize) -> f64 {
 /// E[mean of the `kept` smallest of n iid χ²₁] by its order-statistics integral: with X = Z²,
 /// E[Σ of the kept smallest] = n ∫ z² · 2φ(z) · P(Binomial(n − 1, P(|Z| < z)) < kept) dz, by
 /// Simpson's rule on [0, 12] (the integrand is below 1e-29 beyond).
-pub(crate) fn trimmed_chi2_of(n: usize, kept: usize) -> f64 {
+fn trimmed_chi2_of(n: usize, kept: usize) -> f64 {
     if n == 0 || kept == 0 {
         return 1.0;
     }
@@ -639,7 +639,8 @@ pub fn keep_weights(
             if n == 0 {
                 return 0.0;
             }
-            // Trimmed as the estimate is, so that where the filter removed only noise the two agree.
+            // Trimmed as the estimate is (edges the features miss and fireflies stay out), and divided
+            // by the constant of its own n: with few mates, as at a geometric edge, little is trimmed.
             let kept = n - ((n as f64 * TRIM) as usize);
             let err = trimmed_mean(&mut near[..n], kept) / trimmed_chi2(n);
             let keep = (tolerance * var / err.max(f64::MIN_POSITIVE)).min(1.0);
