@@ -43,6 +43,19 @@ impl Default for BlendParams {
     }
 }
 
+impl BlendParams {
+    /// Checks every key against its allowed range; the error names the key. Both factors scale a
+    /// variance, so 0 or less would hand back the input everywhere or push past it.
+    pub fn validate(&self) -> Result<()> {
+        for (key, value) in [("tolerance", self.tolerance), ("leak", self.leak)] {
+            if !(value > 0.0 && value <= 1e6) {
+                return Err(Error::range(key, value, "above 0, at most 1e6"));
+            }
+        }
+        Ok(())
+    }
+}
+
 pub struct BlendStage {
     id: String,
     io: StageIo,
@@ -52,6 +65,7 @@ pub struct BlendStage {
 impl BlendStage {
     pub fn from_table(id: &str, io: StageIo, table: toml::Table) -> Result<Self> {
         let params: BlendParams = parse_params(id, table)?;
+        params.validate().map_err(|e| e.in_context(id))?;
         Ok(BlendStage {
             id: id.to_string(),
             io,
@@ -112,5 +126,28 @@ impl Stage for BlendStage {
         }
         buffers.insert(self.io.output.clone(), out)?;
         Ok(0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::pipeline::PipelineSpec;
+
+    #[test]
+    fn out_of_range_factors_are_named() {
+        for (key, value) in [
+            ("leak", "-1"),
+            ("leak", "0"),
+            ("tolerance", "nan"),
+            ("leak", "1e9"),
+        ] {
+            let mut spec = PipelineSpec::builtin("full").unwrap();
+            spec.apply_set(&format!("blend.{key}={value}")).unwrap();
+            let err = spec.build().err().expect("rejected").to_string();
+            assert!(
+                err.contains(&format!("blend.{key}")) && err.contains("above 0"),
+                "{err}"
+            );
+        }
     }
 }
