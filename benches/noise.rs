@@ -26,7 +26,7 @@ fn bench_noise(c: &mut Criterion) {
     group.sample_size(30);
     group.bench_function("estimate", |b| b.iter(|| noise::estimate(color, features)));
     group.bench_function("keep_weights", |b| {
-        b.iter(|| noise::keep_weights(color, &filtered, &variance, features, 2.0, 25.0))
+        b.iter(|| noise::keep_weights(color, &filtered, &variance, features, 2.0, 4.0))
     });
     group.finish();
 }

@@ -914,7 +914,7 @@ mod tests {
         for bad in [f32::INFINITY, f32::NAN, -1.0] {
             let v = Image::filled(4, 4, 3, bad);
             assert_eq!(tone_level(&black, &v, 1.0), 0.0);
-            let keep = keep_weights(&black, &black, &v, &FeatureSet::default(), 1.5, 25.0);
+            let keep = keep_weights(&black, &black, &v, &FeatureSet::default(), 1.5, 4.0);
             assert!(keep.iter().all(|k| *k == 0.0));
         }
     }
