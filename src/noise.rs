@@ -322,42 +322,72 @@ fn trimmed_chi2_of(n: usize, kept: usize) -> f64 {
     if n == 0 || kept == 0 {
         return 1.0;
     }
-    const STEPS: usize = 4096;
-    const TOP: f64 = 12.0;
-    let h = TOP / STEPS as f64;
+    // ln of the pmf's ratio from term j to j + 1, apart from p: the same for every z.
+    let ratio: Vec<f64> = (0..kept.min(n))
+        .map(|j| ((n - 1 - j) as f64 / (j + 1) as f64).ln())
+        .collect();
     let mut sum = 0.0;
-    for s in 0..=STEPS {
-        let z = s as f64 * h;
-        let p = erf(z / std::f64::consts::SQRT_2);
+    for node in simpson_nodes() {
         // P(Binomial(n − 1, p) ≤ kept − 1), its terms by the pmf's recurrence in the log domain
         // (the first term, (1 − p)^(n−1), underflows for large n).
-        let cdf = if p >= 1.0 {
+        let cdf = if node.p >= 1.0 {
             if kept >= n {
                 1.0
             } else {
                 0.0
             }
         } else {
-            let (lp, lq) = (p.ln(), (-p).ln_1p());
-            let mut log_term = (n - 1) as f64 * lq;
+            let mut log_term = (n - 1) as f64 * node.lq;
             let mut cdf = 0.0;
-            for j in 0..kept.min(n) {
+            for r in &ratio {
                 cdf += log_term.exp();
-                log_term += ((n - 1 - j) as f64 / (j + 1) as f64).ln() + lp - lq;
+                log_term += r + node.lp - node.lq;
             }
             cdf
         };
-        let density = 2.0 * (-0.5 * z * z).exp() / (2.0 * std::f64::consts::PI).sqrt();
-        let weight = if s == 0 || s == STEPS {
-            1.0
-        } else if s % 2 == 1 {
-            4.0
-        } else {
-            2.0
-        };
-        sum += weight * z * z * density * cdf.min(1.0);
+        sum += node.weight * cdf.min(1.0);
     }
-    n as f64 * sum * h / 3.0 / kept as f64
+    n as f64 * sum * SIMPSON_H / 3.0 / kept as f64
+}
+
+/// Simpson steps of [`trimmed_chi2_of`]'s integral over [0, 12].
+const SIMPSON_STEPS: usize = 4096;
+const SIMPSON_H: f64 = 12.0 / SIMPSON_STEPS as f64;
+
+/// One node of that integral: what depends on z alone, computed once for every n.
+struct SimpsonNode {
+    /// Simpson weight · z² · 2φ(z).
+    weight: f64,
+    /// P(|Z| < z), and its ln and ln(1 − p).
+    p: f64,
+    lp: f64,
+    lq: f64,
+}
+
+fn simpson_nodes() -> &'static [SimpsonNode] {
+    static NODES: std::sync::OnceLock<Vec<SimpsonNode>> = std::sync::OnceLock::new();
+    NODES.get_or_init(|| {
+        (0..=SIMPSON_STEPS)
+            .map(|s| {
+                let z = s as f64 * SIMPSON_H;
+                let p = erf(z / std::f64::consts::SQRT_2);
+                let density = 2.0 * (-0.5 * z * z).exp() / (2.0 * std::f64::consts::PI).sqrt();
+                let weight = if s == 0 || s == SIMPSON_STEPS {
+                    1.0
+                } else if s % 2 == 1 {
+                    4.0
+                } else {
+                    2.0
+                };
+                SimpsonNode {
+                    weight: weight * z * z * density,
+                    p,
+                    lp: p.ln(),
+                    lq: (-p).ln_1p(),
+                }
+            })
+            .collect()
+    })
 }
 
 /// Raw estimate at pixel `i`: a trimmed mean of the squared differences of adjacent surface-mates
