@@ -43,14 +43,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import compare_denoisers as cd  # noqa: E402  (the same OIDN setup, EXR I/O and machine header)
 
 ROOT = cd.ROOT
+fail = cd.fail  # gsidscore's: one line naming this script, exit 2
 SCENE = ROOT / "fixtures" / "textured" / "scene.toml"
 SIZE = 1024
 SPP = 4
-
-
-def fail(message, code=2):
-    print(f"speed_vs_oidn: error: {message}", file=sys.stderr)
-    sys.exit(code)
 
 
 def sized_scene(into):
