@@ -4,15 +4,13 @@
 
 use gsid::prefilter::{self, Kind, Params};
 use gsid::render_set::Feature;
+use gsid::stages::prefilter::PrefilterParams;
 use gsid::{Buffers, Image, PipelineSpec, RenderSet};
 
 /// The `prefilter` stage's defaults.
-const PARAMS: Params = Params {
-    strength: 0.25,
-    radius: 3,
-    patch: 1,
-    keep: 0.65,
-};
+fn params() -> Params {
+    PrefilterParams::default().kernel_params()
+}
 
 /// A reproducible uniform stream in [0, 1).
 fn uniforms(seed: u64) -> impl FnMut() -> f32 {
@@ -26,8 +24,9 @@ fn uniforms(seed: u64) -> impl FnMut() -> f32 {
 }
 
 fn filtered(img: &Image, kind: Kind) -> Image {
-    let v = prefilter::variance(img, kind, PARAMS.keep);
-    prefilter::filter(img, &v, kind, &PARAMS)
+    let p = params();
+    let v = prefilter::variance(img, kind, p.keep);
+    prefilter::filter(img, &v, kind, &p)
 }
 
 fn rms(a: &Image, b: &Image) -> f64 {

@@ -88,6 +88,16 @@ impl PrefilterParams {
         }
         Ok(())
     }
+
+    /// The kernel's settings.
+    pub fn kernel_params(&self) -> Params {
+        Params {
+            strength: self.strength,
+            radius: self.radius,
+            patch: self.patch,
+            keep: self.keep,
+        }
+    }
 }
 
 pub struct PrefilterStage {
@@ -127,12 +137,7 @@ impl Stage for PrefilterStage {
     }
 
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
-        let p = Params {
-            strength: self.params.strength,
-            radius: self.params.radius,
-            patch: self.params.patch,
-            keep: self.params.keep,
-        };
+        let p = self.params.kernel_params();
         for &feature in &self.features {
             let Some(img) = buffers.features().get(feature) else {
                 ctx.note(format!(
