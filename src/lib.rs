@@ -65,6 +65,7 @@ pub mod spec;
 pub mod stages;
 #[cfg(feature = "cli")]
 pub mod study;
+pub mod trim;
 pub mod walk;
 
 pub use crate::buffers::Buffers;

@@ -17,10 +17,11 @@ use rayon::prelude::*;
 
 use crate::image::Image;
 use crate::render_set::{Feature, FeatureSet};
+use crate::simd::{row_kernel, Kernel};
+use crate::trim::{self, Padded, LANES, MAX_PAIRS, PAIRS};
 
-/// Radius of the window of the raw estimate (5×5).
-const RAW_RADIUS: isize = 2;
-const RAW_SIDE: usize = 2 * RAW_RADIUS as usize + 1;
+/// Radius of the window of the raw estimate (5×5): the adjacent pairs are `trim::PAIRS`.
+const RAW_RADIUS: isize = trim::RADIUS;
 /// Radius of the window the raw estimates are averaged over (7×7).
 const SMOOTH_RADIUS: isize = 3;
 /// Fewest surface-mates (the pixel included) a raw estimate needs.
@@ -271,27 +272,39 @@ fn spread(color: &[f32], members: &[usize]) -> ([f64; 3], usize) {
 
 /// Estimates the variance of every pixel's colour mean (RGB) from the colour and the features.
 pub fn estimate(color: &Image, features: &FeatureSet) -> Image {
+    estimate_with(Kernel::detect(), color, features)
+}
+
+/// [`estimate`] with a chosen kernel for the raw estimates (all give the same bits).
+pub fn estimate_with(kernel: Kernel, color: &Image, features: &FeatureSet) -> Image {
     let (w, h) = color.dims();
     let surface = Surface::new(features, (w, h));
+    // Brought to albedo 1: bringing a neighbour to a pixel's albedo is then one factor per
+    // pixel, applied in `smooth`.
     let c = color.data();
-    // Demodulated once: bringing j to i's albedo is then one factor per pixel i, applied in `smooth`.
-    let flat: Vec<[f64; 3]> = (0..w * h)
-        .into_par_iter()
-        .map(|i| {
-            let s = surface.scale(i);
-            std::array::from_fn(|k| c[3 * i + k] as f64 / s[k])
-        })
-        .collect();
+    let flat = Padded::new((w, h), 3, |i, k| c[3 * i + k] as f64 / surface.scale(i)[k]);
     let mates = surface.mates(w, h, SMOOTH_RADIUS as usize);
-    let raw: Vec<([f64; 3], usize)> = (0..w * h)
-        .into_par_iter()
-        .map(|i| pair_spread(&flat, &mates, i, w))
-        .collect();
+    let mut raw = vec![([0.0; 3], 0); w * h];
+    raw.par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(y, out)| {
+            let (flat, mates) = (&flat, &mates);
+            row_kernel!(kernel, raw_row(flat: &Padded, mates: &Mates, y: usize, out: &mut [([f64; 3], usize)]))
+        });
     smooth(color, &surface, &mates, &raw)
 }
 
-/// Pairs of adjacent pixels a raw estimate uses: all horizontal and vertical pairs of the window.
-const MAX_PAIRS: usize = 2 * RAW_SIDE * (RAW_SIDE - 1);
+/// The raw estimates of row `y`, `LANES` pixels at a time.
+#[inline(always)]
+fn raw_row(flat: &Padded, mates: &Mates, y: usize, out: &mut [([f64; 3], usize)]) {
+    let w = out.len();
+    trim::by_lanes!(out, |x| pair_spread::<LANES>(flat, mates, x, y, w), |x| {
+        pair_spread::<1>(flat, mates, x, y, w)[0]
+    },);
+}
+
+/// Most pairs a raw estimate trims: `TRIM` of them all.
+const MOST_TRIMMED: usize = (MAX_PAIRS as f64 * TRIM) as usize;
 /// The share of the largest squared differences left out: pairs across an edge the features do
 /// not show (a light's rim, a shadow's) and fireflies, which are not the noise a filter should
 /// follow.
@@ -390,60 +403,60 @@ fn simpson_nodes() -> &'static [SimpsonNode] {
     })
 }
 
-/// Raw estimate at pixel `i`: a trimmed mean of the squared differences of adjacent surface-mates
-/// in its window (brought to `i`'s albedo), which a smooth change of light barely enters; with
-/// its number of pairs kept (0: too few mates).
-fn pair_spread(flat: &[[f64; 3]], mates: &Mates, i: usize, w: usize) -> ([f64; 3], usize) {
-    let m = mates.bits[i];
+/// Raw estimates at pixels (x..x + L, y): per lane, a trimmed mean of the squared differences of
+/// adjacent surface-mates in its window (brought to albedo 1), which a smooth change of light
+/// barely enters; with its number of pairs kept (0: too few mates).
+#[inline(always)]
+fn pair_spread<const L: usize>(
+    flat: &Padded,
+    mates: &Mates,
+    x: usize,
+    y: usize,
+    w: usize,
+) -> [([f64; 3], usize); L] {
+    let mut bits = [0u64; L];
+    bits.copy_from_slice(&mates.bits[y * w + x..y * w + x + L]);
     let (side, c) = (mates.side as isize, (mates.side / 2) as isize);
-    let r = RAW_RADIUS;
-    let mate = |dx: isize, dy: isize| (m >> ((dy + c) * side + dx + c)) & 1 == 1;
-    let mut count = 0;
-    for dy in -r..=r {
-        for dx in -r..=r {
-            count += mate(dx, dy) as usize;
+    let bit = |(dx, dy): (isize, isize)| ((dy + c) * side + dx + c) as u32;
+    let mut valid = [[false; L]; MAX_PAIRS];
+    let mut d2 = [[[0.0f64; L]; MAX_PAIRS]; 3];
+    let mut n = [0usize; L];
+    for (p, &[a, b]) in PAIRS.iter().enumerate() {
+        for l in 0..L {
+            valid[p][l] = bits[l] >> bit(a) & bits[l] >> bit(b) & 1 == 1;
+            n[l] += usize::from(valid[p][l]);
         }
-    }
-    if count < MIN_MATES {
-        return ([0.0; 3], 0);
-    }
-    let mut d2 = [[0i64; MAX_PAIRS]; 3];
-    let mut n = 0;
-    for dy in -r..=r {
-        for dx in -r..=r {
-            if !mate(dx, dy) {
-                continue;
-            }
-            let j = (i as isize + dy * w as isize + dx) as usize;
-            for (qx, qy, q) in [(dx + 1, dy, j + 1), (dx, dy + 1, j + w)] {
-                if qx > r || qy > r || !mate(qx, qy) {
-                    continue;
-                }
-                for (k, row) in d2.iter_mut().enumerate() {
-                    let d = flat[j][k] - flat[q][k];
-                    row[n] = total_key(d * d);
-                }
-                n += 1;
+        let (ia, ib) = (flat.at(x, y, a), flat.at(x, y, b));
+        for (k, plane) in flat.planes.iter().enumerate() {
+            let (pa, pb) = (&plane[ia..ia + L], &plane[ib..ib + L]);
+            for l in 0..L {
+                let d = pa[l] - pb[l];
+                d2[k][p][l] = d * d;
             }
         }
     }
-    if n < 2 {
-        return ([0.0; 3], 0);
+    let mut dropped = [0usize; L];
+    for l in 0..L {
+        dropped[l] = (n[l] as f64 * TRIM) as usize;
     }
-    let kept = n - ((n as f64 * TRIM) as usize);
-    let var =
-        std::array::from_fn(|k| trimmed_mean(&mut d2[k][..n], kept) / (2.0 * TRIMMED_CHI2_MEAN));
-    (var, kept)
-}
-
-/// The mean of the `kept` smallest values, given as `total_key`s (reorders `values`). Selecting
-/// on the integer keys is the same selection as on the floats by `f64::total_cmp`, with a cheaper
-/// comparison.
-pub(crate) fn trimmed_mean(values: &mut [i64], kept: usize) -> f64 {
-    if kept < values.len() {
-        values.select_nth_unstable(kept);
+    let mut means = [[0.0f64; L]; 3];
+    for k in 0..3 {
+        means[k] = trim::lanes::<L, MAX_PAIRS, MOST_TRIMMED>(&d2[k], &valid, dropped);
     }
-    values[..kept].iter().map(|&k| from_key(k)).sum::<f64>() / kept as f64
+    // The raw window's cells among the mates' bits.
+    let window: u64 = (-RAW_RADIUS..=RAW_RADIUS)
+        .flat_map(|dy| (-RAW_RADIUS..=RAW_RADIUS).map(move |dx| (dx, dy)))
+        .fold(0, |m, cell| m | 1 << bit(cell));
+    let mut out = [([0.0; 3], 0); L];
+    for (l, (var, kept)) in out.iter_mut().enumerate() {
+        if (bits[l] & window).count_ones() as usize >= MIN_MATES && n[l] >= 2 {
+            for (v, mean) in var.iter_mut().zip(&means) {
+                *v = mean[l] / (2.0 * TRIMMED_CHI2_MEAN);
+            }
+            *kept = n[l] - dropped[l];
+        }
+    }
+    out
 }
 
 /// The mean of the smallest `keep` share of χ²₁ samples, E[χ²₁ | below its `keep` quantile]: the
@@ -475,19 +488,6 @@ fn erf(z: f64) -> f64 {
         sum += term / (2 * n + 1) as f64;
     }
     (2.0 / std::f64::consts::PI.sqrt() * sum).clamp(-1.0, 1.0)
-}
-
-/// An integer whose order is `f64::total_cmp`'s (the same bit flip it makes).
-#[inline]
-pub(crate) fn total_key(x: f64) -> i64 {
-    let bits = x.to_bits() as i64;
-    bits ^ ((((bits >> 63) as u64) >> 1) as i64)
-}
-
-/// The inverse of `total_key` (the flip is its own inverse).
-#[inline]
-fn from_key(key: i64) -> f64 {
-    f64::from_bits((key ^ ((((key >> 63) as u64) >> 1) as i64)) as u64)
 }
 
 /// Smooths a variance the renderer measured (a `variance` buffer, noisy itself at few samples)
@@ -619,7 +619,7 @@ pub fn tone_level(color: &Image, variance: &Image, exposure: f32) -> f64 {
 }
 
 /// Radius of the window the blend's error estimate averages over (5×5).
-const BLEND_RADIUS: isize = 2;
+const BLEND_RADIUS: isize = trim::RADIUS;
 const BLEND_TAPS: usize = (2 * BLEND_RADIUS as usize + 1).pow(2);
 
 /// Per pixel, how much of `filtered` to keep over `color` (0..1): the Wiener weight
@@ -635,44 +635,56 @@ pub fn keep_weights(
     tolerance: f64,
     leak: f64,
 ) -> Vec<f32> {
+    keep_weights_with(
+        Kernel::detect(),
+        color,
+        filtered,
+        variance,
+        features,
+        tolerance,
+        leak,
+    )
+}
+
+/// [`keep_weights`] with a chosen kernel for the error estimates (all give the same bits).
+pub fn keep_weights_with(
+    kernel: Kernel,
+    color: &Image,
+    filtered: &Image,
+    variance: &Image,
+    features: &FeatureSet,
+    tolerance: f64,
+    leak: f64,
+) -> Vec<f32> {
     let (w, h) = color.dims();
     let surface = Surface::new(features, (w, h));
     let (c, f, v) = (color.data(), filtered.data(), variance.data());
     let mates = surface.mates(w, h, BLEND_RADIUS as usize);
-    let diff2: Vec<f64> = (0..w * h)
-        .into_par_iter()
-        .map(|i| {
-            (0..3)
-                .map(|k| {
-                    let d = f[3 * i + k] as f64 - c[3 * i + k] as f64;
-                    d * d
-                })
-                .sum::<f64>()
-                / 3.0
-        })
-        .collect();
+    let diff2 = Padded::new((w, h), 1, |i, _| {
+        (0..3)
+            .map(|k| {
+                let d = f[3 * i + k] as f64 - c[3 * i + k] as f64;
+                d * d
+            })
+            .sum::<f64>()
+            / 3.0
+    });
+    let mut err = vec![(0.0, 0); w * h];
+    err.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, out)| {
+        let (diff2, mates) = (&diff2, &mates);
+        row_kernel!(kernel, blend_error_row(diff2: &Padded, mates: &Mates, y: usize, out: &mut [(f64, usize)]))
+    });
     (0..w * h)
         .into_par_iter()
         .map(|i| {
             let var = (0..3).map(|k| clean(v[3 * i + k])).sum::<f64>() / 3.0;
-            if var <= 0.0 {
+            let (err, n) = err[i];
+            if var <= 0.0 || n == 0 {
                 return 0.0;
             }
-            let mut near = [0i64; BLEND_TAPS];
-            let mut n = 0;
-            for j in mates.of(i) {
-                if diff2[j].is_finite() {
-                    near[n] = total_key(diff2[j]);
-                    n += 1;
-                }
-            }
-            if n == 0 {
-                return 0.0;
-            }
-            // Trimmed as the estimate is (edges the features miss and fireflies stay out), and divided
-            // by the constant of its own n: with few mates, as at a geometric edge, little is trimmed.
-            let kept = n - ((n as f64 * TRIM) as usize);
-            let err = trimmed_mean(&mut near[..n], kept) / trimmed_chi2(n);
+            // Divided by the constant of its own n: with few mates, as at a geometric edge,
+            // little is trimmed.
+            let err = err / trimmed_chi2(n);
             let keep = (tolerance * var / err.max(f64::MIN_POSITIVE)).min(1.0);
             // A pixel the filter made far brighter than its own noise allows took light from a
             // neighbour the features could not tell apart (an emitter beside the ceiling it lies
@@ -686,6 +698,60 @@ pub fn keep_weights(
             keep.min(leak).min(1.0) as f32
         })
         .collect()
+}
+
+/// Most of the blend's values trimmed: `TRIM` of its window.
+const BLEND_TRIMMED: usize = (BLEND_TAPS as f64 * TRIM) as usize;
+
+/// The blend's error estimates along row `y`: per pixel, the trimmed mean of `diff2` over its
+/// surface-mates (trimmed as the estimate is, so edges the features miss and fireflies stay out)
+/// and how many finite values it had.
+#[inline(always)]
+fn blend_error_row(diff2: &Padded, mates: &Mates, y: usize, out: &mut [(f64, usize)]) {
+    let w = out.len();
+    trim::by_lanes!(out, |x| blend_errors::<LANES>(diff2, mates, x, y, w), |x| {
+        blend_errors::<1>(diff2, mates, x, y, w)[0]
+    },);
+}
+
+/// [`blend_error_row`] at pixels (x..x + L, y).
+#[inline(always)]
+fn blend_errors<const L: usize>(
+    diff2: &Padded,
+    mates: &Mates,
+    x: usize,
+    y: usize,
+    w: usize,
+) -> [(f64, usize); L] {
+    let r = BLEND_RADIUS;
+    let mut bits = [0u64; L];
+    bits.copy_from_slice(&mates.bits[y * w + x..y * w + x + L]);
+    let plane = &diff2.planes[0];
+    let mut values = [[0.0f64; L]; BLEND_TAPS];
+    let mut valid = [[false; L]; BLEND_TAPS];
+    let mut n = [0usize; L];
+    for (cell, (value, ok)) in values.iter_mut().zip(valid.iter_mut()).enumerate() {
+        let (dx, dy) = (
+            (cell % mates.side) as isize - r,
+            (cell / mates.side) as isize - r,
+        );
+        let at = diff2.at(x, y, (dx, dy));
+        value.copy_from_slice(&plane[at..at + L]);
+        for l in 0..L {
+            ok[l] = (bits[l] >> cell & 1 == 1) & (value[l] <= f64::MAX);
+            n[l] += usize::from(ok[l]);
+        }
+    }
+    let mut dropped = [0usize; L];
+    for l in 0..L {
+        dropped[l] = (n[l] as f64 * TRIM) as usize;
+    }
+    let mean = trim::lanes::<L, BLEND_TAPS, BLEND_TRIMMED>(&values, &valid, dropped);
+    let mut out = [(0.0, 0); L];
+    for l in 0..L {
+        out[l] = (mean[l], n[l]);
+    }
+    out
 }
 
 #[cfg(test)]
@@ -748,37 +814,6 @@ mod tests {
         for (x, y) in [(4, 4), (5, 4), (4, 5), (5, 5)] {
             let k = keep[y * 9 + x];
             assert!(k > 0.999, "patch pixel ({x}, {y}): keep {k}");
-        }
-    }
-
-    #[test]
-    fn trimmed_means_keep_the_smallest_values() {
-        let mut next = xorshift(1);
-        for n in 1..=40usize {
-            for trial in 0..20 {
-                // Few distinct values (ties), or a firefly's dynamic range (1e-6 to 1e12).
-                let x: Vec<f64> = (0..n)
-                    .map(|_| {
-                        let r = next();
-                        if trial % 2 == 0 {
-                            (r % 4) as f64
-                        } else {
-                            10f64.powi((r % 19) as i32 - 6) * (1.0 + (r >> 40) as f64 / 1e7)
-                        }
-                    })
-                    .collect();
-                let mut sorted = x.clone();
-                sorted.sort_by(f64::total_cmp);
-                for kept in 1..=n {
-                    let want = sorted[..kept].iter().sum::<f64>() / kept as f64;
-                    let mut keys: Vec<i64> = x.iter().map(|&v| total_key(v)).collect();
-                    let got = trimmed_mean(&mut keys, kept);
-                    assert!(
-                        (got - want).abs() <= 1e-12 * want.abs(),
-                        "n {n} kept {kept}: {got} against {want}"
-                    );
-                }
-            }
         }
     }
 

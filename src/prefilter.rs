@@ -11,14 +11,12 @@
 
 use rayon::prelude::*;
 
+use crate::fastmath::exp_neg_row;
 use crate::image::Image;
-use crate::noise::{total_key, trimmed_chi2_mean, trimmed_mean};
+use crate::noise::trimmed_chi2_mean;
+use crate::simd::{row_kernel, Kernel};
+use crate::trim::{self, Padded, LANES, MAX_PAIRS, PAIRS};
 
-/// Radius of the window the variance is read from (5×5, as the colour's raw estimate).
-const VAR_RADIUS: isize = 2;
-const VAR_SIDE: usize = 2 * VAR_RADIUS as usize + 1;
-/// Adjacent pairs in that window: every horizontal and vertical pair.
-const MAX_PAIRS: usize = 2 * VAR_SIDE * (VAR_SIDE - 1);
 /// Smallest variance (in the feature's units squared) a patch distance is divided by: a difference
 /// of 1 % of an albedo or normal component is one unit where the estimate reads no noise at all.
 const EPS: f64 = 1e-4;
@@ -58,63 +56,104 @@ fn known(img: &Image, kind: Kind, i: usize) -> bool {
 /// texture the feature shows cleanly (crossing fewer pairs than the rest) reads as no noise. A
 /// pixel with fewer than two pairs reads 0.
 pub fn variance(img: &Image, kind: Kind, keep: f64) -> Vec<f32> {
+    variance_with(Kernel::detect(), img, kind, keep)
+}
+
+/// [`variance`] with a chosen kernel (all give the same bits).
+pub fn variance_with(kernel: Kernel, img: &Image, kind: Kind, keep: f64) -> Vec<f32> {
     let (w, h) = img.dims();
     let c = img.channels();
+    // The channels, then 1 where a pixel takes part (inside the image and known), else 0.
+    let data = img.data();
+    let planes = Padded::new((w, h), c + 1, |i, k| {
+        if k < c {
+            data[i * c + k] as f64
+        } else {
+            f64::from(u8::from(known(img, kind, i)))
+        }
+    });
     let unit = 2.0 * trimmed_chi2_mean(keep);
-    (0..w * h)
-        .into_par_iter()
-        .map(|i| {
-            if !known(img, kind, i) {
-                return 0.0;
+    let mut out = vec![0.0f32; w * h];
+    out.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, out)| {
+        let planes = &planes;
+        row_kernel!(kernel, variance_row(planes: &Padded, keep: f64, unit: f64, y: usize, out: &mut [f32]))
+    });
+    out
+}
+
+/// Most pairs [`variance`] leaves out with the default `keep` in one pass of short lists; a
+/// smaller `keep` takes lists as long as the window.
+const SHORT_LIST: usize = 14;
+
+/// [`variance`] of row `y`, `LANES` pixels at a time.
+#[inline(always)]
+fn variance_row(planes: &Padded, keep: f64, unit: f64, y: usize, out: &mut [f32]) {
+    let dropped = |n: usize| n - ((n as f64 * keep) as usize).max(1).min(n);
+    let short = dropped(MAX_PAIRS) <= SHORT_LIST;
+    trim::by_lanes!(
+        out,
+        |x| {
+            if short {
+                pixel_variance::<LANES, SHORT_LIST>(planes, &dropped, unit, x, y)
+            } else {
+                pixel_variance::<LANES, MAX_PAIRS>(planes, &dropped, unit, x, y)
             }
-            let (x, y) = ((i % w) as isize, (i / w) as isize);
-            let inside = |nx: isize, ny: isize| {
-                (x - VAR_RADIUS..=x + VAR_RADIUS).contains(&nx)
-                    && (y - VAR_RADIUS..=y + VAR_RADIUS).contains(&ny)
-                    && nx >= 0
-                    && ny >= 0
-                    && (nx as usize) < w
-                    && (ny as usize) < h
-            };
-            let mut pairs = [(0usize, 0usize); MAX_PAIRS];
-            let mut n = 0;
-            for ny in y - VAR_RADIUS..=y + VAR_RADIUS {
-                for nx in x - VAR_RADIUS..=x + VAR_RADIUS {
-                    if !inside(nx, ny) {
-                        continue;
-                    }
-                    let j = ny as usize * w + nx as usize;
-                    for (qx, qy) in [(nx + 1, ny), (nx, ny + 1)] {
-                        let q = qy as usize * w + qx as usize;
-                        if inside(qx, qy) && known(img, kind, j) && known(img, kind, q) {
-                            pairs[n] = (j, q);
-                            n += 1;
-                        }
-                    }
-                }
+        },
+        |x| pixel_variance::<1, MAX_PAIRS>(planes, &dropped, unit, x, y)[0],
+    );
+}
+
+/// The variances of pixels (x..x + L, y), with at most `T` pairs dropped per pixel.
+#[inline(always)]
+fn pixel_variance<const L: usize, const T: usize>(
+    planes: &Padded,
+    dropped: &impl Fn(usize) -> usize,
+    unit: f64,
+    x: usize,
+    y: usize,
+) -> [f32; L] {
+    let (c, ok) = (
+        planes.planes.len() - 1,
+        &planes.planes[planes.planes.len() - 1],
+    );
+    let mut valid = [[false; L]; MAX_PAIRS];
+    let mut n = [0usize; L];
+    for (p, &[a, b]) in PAIRS.iter().enumerate() {
+        let (ia, ib) = (planes.at(x, y, a), planes.at(x, y, b));
+        let (oa, ob) = (&ok[ia..ia + L], &ok[ib..ib + L]);
+        for l in 0..L {
+            valid[p][l] = (oa[l] != 0.0) & (ob[l] != 0.0);
+            n[l] += usize::from(valid[p][l]);
+        }
+    }
+    let mut drop = [0usize; L];
+    for l in 0..L {
+        drop[l] = if n[l] >= 2 { dropped(n[l]) } else { 0 };
+    }
+    let mut total = [0.0f64; L];
+    let mut d2 = [[0.0f64; L]; MAX_PAIRS];
+    for plane in &planes.planes[..c] {
+        for (p, &[a, b]) in PAIRS.iter().enumerate() {
+            let (ia, ib) = (planes.at(x, y, a), planes.at(x, y, b));
+            let (pa, pb) = (&plane[ia..ia + L], &plane[ib..ib + L]);
+            for l in 0..L {
+                let d = pa[l] - pb[l];
+                d2[p][l] = d * d;
             }
-            if n < 2 {
-                return 0.0;
-            }
-            let kept = ((n as f64 * keep) as usize).max(1);
-            let mut d2 = [0i64; MAX_PAIRS];
-            let mut total = 0.0;
-            for k in 0..c {
-                let mut zeros = 0;
-                for (slot, &(j, q)) in d2.iter_mut().zip(&pairs[..n]) {
-                    let d = img.pixel(j)[k] as f64 - img.pixel(q)[k] as f64;
-                    *slot = total_key(d * d);
-                    zeros += usize::from(d == 0.0);
-                }
-                // Squares are ≥ 0, so when the kept share is all zeros its mean is 0: the common
-                // case of a uniform albedo, without the selection.
-                if zeros < kept {
-                    total += trimmed_mean(&mut d2[..n], kept) / unit;
-                }
-            }
-            (total / c as f64) as f32
-        })
-        .collect()
+        }
+        let mean = trim::lanes::<L, MAX_PAIRS, T>(&d2, &valid, drop);
+        for l in 0..L {
+            total[l] += mean[l] / unit;
+        }
+    }
+    let centre = planes.at(x, y, (0, 0));
+    let mut out = [0.0f32; L];
+    for l in 0..L {
+        if n[l] >= 2 && ok[centre + l] != 0.0 {
+            out[l] = (total[l] / c as f64) as f32;
+        }
+    }
+    out
 }
 
 /// Rows one parallel task filters: every pixel's sums still run over the offsets in one fixed
@@ -131,24 +170,30 @@ const BAND: usize = 16;
 /// Computed offset by offset (the classic fast NL-means): for one offset, the per-pixel terms over
 /// a band of rows, box-summed over the patch, give every pixel's distance to its partner at once.
 pub fn filter(img: &Image, variance: &[f32], kind: Kind, p: &Params) -> Image {
+    filter_with(Kernel::detect(), img, variance, kind, p)
+}
+
+/// [`filter`] with a chosen kernel for the weights' exponentials (all give the same bits).
+pub fn filter_with(kernel: Kernel, img: &Image, variance: &[f32], kind: Kind, p: &Params) -> Image {
     let (w, h) = img.dims();
     let c = img.channels();
     let data = img.data();
     let known: Vec<bool> = (0..w * h).map(|i| known(img, kind, i)).collect();
     let active = |i: usize| variance[i] > 0.0 && known[i];
-    let eps: Vec<f64> = (0..w * h)
-        .map(|i| match kind {
-            Kind::Depth => (EPS * (data[i] as f64).powi(2)).max(f64::MIN_POSITIVE),
-            Kind::Plain | Kind::Normal => EPS,
-        })
-        .collect();
     let (r, f) = (p.radius as isize, p.patch as isize);
     let k2 = p.strength * p.strength;
     let terms = ((2 * f + 1) * (2 * f + 1)) as f64 * c as f64;
-    let clamp = |x: isize, y: isize| {
-        let (x, y) = (x.clamp(0, w as isize - 1), y.clamp(0, h as isize - 1));
-        y as usize * w + x as usize
-    };
+    // A patch cell beyond the image reads the nearest edge pixel: planes with a margin that
+    // repeats it make every offset's terms one contiguous run of both patches' cells.
+    let edge = Edge::new(w, h, (r + f) as usize);
+    let chans: Vec<Vec<f64>> = (0..c)
+        .map(|k| edge.plane(|i| data[i * c + k] as f64))
+        .collect();
+    let var = edge.plane(|i| variance[i] as f64);
+    let eps = edge.plane(|i| match kind {
+        Kind::Depth => (EPS * (data[i] as f64).powi(2)).max(f64::MIN_POSITIVE),
+        Kind::Plain | Kind::Normal => EPS,
+    });
     let mut out = img.par_clone();
     out.data_mut()
         .par_chunks_mut(BAND * w * c)
@@ -166,26 +211,32 @@ pub fn filter(img: &Image, variance: &[f32], kind: Kind, p: &Params) -> Image {
                 .expect("an active column exists");
             // Terms over the band's rows and columns widened by the patch radius.
             let (tw, th) = (w + 2 * f as usize, y1 - y0 + 2 * f as usize);
+            let run = x_hi + 2 * f as usize + 1 - x_lo;
             let mut term = vec![0.0f64; tw * th];
             let mut across = vec![0.0f64; w * th];
             let mut sum = vec![[0.0f64; 3]; (y1 - y0) * w];
             let mut total = vec![0.0f64; (y1 - y0) * w];
+            let mut weight = vec![0.0f32; x_hi + 1 - x_lo];
             for oy in -r..=r {
                 for ox in -r..=r {
                     for ty in 0..th {
                         let py = y0 as isize + ty as isize - f;
-                        for tx in x_lo..=x_hi + 2 * f as usize {
-                            let px = tx as isize - f;
-                            let (a, b) = (clamp(px, py), clamp(px + ox, py + oy));
-                            let (va, vb) = (variance[a] as f64, variance[b] as f64);
-                            let expected = va + va.min(vb);
-                            let scale = eps[a] + k2 * (va + vb);
-                            let mut d2 = 0.0;
-                            for ch in 0..c {
-                                let d = data[a * c + ch] as f64 - data[b * c + ch] as f64;
-                                d2 += d * d;
+                        let a = edge.index(x_lo as isize - f, py);
+                        let b = edge.index(x_lo as isize - f + ox, py + oy);
+                        let row = &mut term[ty * tw + x_lo..ty * tw + x_lo + run];
+                        row.fill(0.0);
+                        for ch in &chans {
+                            let (ua, ub) = (&ch[a..a + run], &ch[b..b + run]);
+                            for ((t, &u), &v) in row.iter_mut().zip(ua).zip(ub) {
+                                let d = u - v;
+                                *t += d * d;
                             }
-                            term[ty * tw + tx] = (d2 - c as f64 * expected) / scale;
+                        }
+                        let (va, vb, ea) = (&var[a..a + run], &var[b..b + run], &eps[a..a + run]);
+                        for (((t, &va), &vb), &ea) in row.iter_mut().zip(va).zip(vb).zip(ea) {
+                            let expected = va + if vb < va { vb } else { va };
+                            let scale = ea + k2 * (va + vb);
+                            *t = (*t - c as f64 * expected) / scale;
                         }
                     }
                     for ty in 0..th {
@@ -199,24 +250,37 @@ pub fn filter(img: &Image, variance: &[f32], kind: Kind, p: &Params) -> Image {
                         if ny < 0 || ny >= h as isize {
                             continue;
                         }
-                        for x in x_lo..=x_hi {
-                            let (i, nx) = (y * w + x, x as isize + ox);
-                            if nx < 0 || nx >= w as isize || !active(i) {
+                        // Who takes part: an active pixel and a known partner inside the image;
+                        // the others weigh exp(−∞) = 0.
+                        let takes_part = |x: usize| {
+                            let nx = x as isize + ox;
+                            nx >= 0
+                                && nx < w as isize
+                                && active(y * w + x)
+                                && known[ny as usize * w + nx as usize]
+                        };
+                        for (x, e) in (x_lo..=x_hi).zip(weight.iter_mut()) {
+                            *e = if takes_part(x) {
+                                let dist: f64 = (0..=2 * f as usize)
+                                    .map(|dy| across[(ly + dy) * w + x])
+                                    .sum();
+                                -(dist / terms).max(0.0) as f32
+                            } else {
+                                f32::NEG_INFINITY
+                            };
+                        }
+                        exp_neg_row(kernel, &mut weight);
+                        for (x, &e) in (x_lo..=x_hi).zip(weight.iter()) {
+                            if e <= 0.0 {
                                 continue;
                             }
-                            let j = ny as usize * w + nx as usize;
-                            if !known[j] {
-                                continue;
-                            }
-                            let dist: f64 = (0..=2 * f as usize)
-                                .map(|dy| across[(ly + dy) * w + x])
-                                .sum();
-                            let weight = (-(dist / terms).max(0.0)).exp();
+                            let j = (ny * w as isize + x as isize + ox) as usize;
+                            let e = e as f64;
                             let acc = &mut sum[ly * w + x];
                             for ch in 0..c {
-                                acc[ch] += weight * data[j * c + ch] as f64;
+                                acc[ch] += e * data[j * c + ch] as f64;
                             }
-                            total[ly * w + x] += weight;
+                            total[ly * w + x] += e;
                         }
                     }
                 }
@@ -225,7 +289,7 @@ pub fn filter(img: &Image, variance: &[f32], kind: Kind, p: &Params) -> Image {
                 if !active(y0 * w + l) {
                     continue;
                 }
-                // The pixel itself is its own partner at offset 0, weight 1, so total ≥ 1.
+                // The pixel itself is its own partner at offset 0, weight exp(0) = 1, so total ≥ 1.
                 let mut v: [f64; 3] = std::array::from_fn(|ch| sum[l][ch] / total[l]);
                 if kind == Kind::Normal {
                     let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
@@ -240,6 +304,47 @@ pub fn filter(img: &Image, variance: &[f32], kind: Kind, p: &Params) -> Image {
             }
         });
     out
+}
+
+/// Planes of a `w`×`h` image with a margin of `margin` cells on every side that repeat the
+/// nearest edge pixel.
+struct Edge {
+    w: usize,
+    h: usize,
+    margin: usize,
+}
+
+impl Edge {
+    fn new(w: usize, h: usize, margin: usize) -> Self {
+        Edge { w, h, margin }
+    }
+
+    fn stride(&self) -> usize {
+        self.w + 2 * self.margin
+    }
+
+    /// The plane of `value(pixel index)`.
+    fn plane(&self, value: impl Fn(usize) -> f64 + Sync) -> Vec<f64> {
+        let (w, h, m) = (self.w as isize, self.h as isize, self.margin as isize);
+        let mut plane = vec![0.0; self.stride() * (self.h + 2 * self.margin)];
+        plane
+            .par_chunks_mut(self.stride())
+            .enumerate()
+            .for_each(|(row, cells)| {
+                let y = (row as isize - m).clamp(0, h - 1);
+                for (col, v) in cells.iter_mut().enumerate() {
+                    let x = (col as isize - m).clamp(0, w - 1);
+                    *v = value((y * w + x) as usize);
+                }
+            });
+        plane
+    }
+
+    /// Index of pixel (x, y), −margin ≤ x < w + margin (and y likewise), in a plane.
+    fn index(&self, x: isize, y: isize) -> usize {
+        let m = self.margin as isize;
+        ((y + m) * self.stride() as isize + x + m) as usize
+    }
 }
 
 #[cfg(test)]

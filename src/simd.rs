@@ -40,3 +40,25 @@ impl Kernel {
         }
     }
 }
+
+/// Calls the row function `f(args…)` compiled for `kernel`: the same code, so the same bits, with
+/// AVX2 lanes where the CPU has them. `f` must be `#[inline(always)]` and return nothing, so
+/// its loops are compiled inside the AVX2 copy.
+macro_rules! row_kernel {
+    ($kernel:expr, $f:ident($($arg:ident: $ty:ty),* $(,)?)) => {{
+        #[cfg(target_arch = "x86_64")]
+        if $kernel.or_portable() == $crate::simd::Kernel::Avx2 {
+            #[target_feature(enable = "avx2")]
+            fn avx2($($arg: $ty),*) {
+                $f($($arg),*)
+            }
+            // SAFETY: `or_portable` gives Avx2 only when the CPU reports AVX2.
+            unsafe { avx2($($arg),*) }
+        } else {
+            $f($($arg),*)
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        $f($($arg),*)
+    }};
+}
+pub(crate) use row_kernel;

@@ -215,3 +215,47 @@ fn noise_power_zero_is_a_fixed_sigma() {
         );
     }
 }
+
+#[test]
+fn both_kernels_give_the_same_bits() {
+    use gsid::simd::Kernel;
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    for (w, h) in [(1, 1), (2, 3), (5, 4), (23, 17), (41, 9)] {
+        // Noisy colour over three albedos, two normals and a depth step, so pixels have every
+        // number of surface-mates.
+        let hash =
+            |x: usize, y: usize, c: usize| ((x * 7919 + y * 104_729 + c * 31) % 97) as f32 / 97.0;
+        let color = Image::from_fn(w, h, 3, |x, y, c| 0.3 + hash(x, y, c).powi(4) * 3.0);
+        let albedo = Image::from_fn(w, h, 3, |x, y, _| [0.2, 0.5, 0.9][(x / 3 + y / 4) % 3]);
+        let normal = Image::from_fn(w, h, 3, |x, _, k| {
+            if (x / 5) % 2 == 0 {
+                [0.0, 0.0, 1.0][k]
+            } else {
+                [0.0, 1.0, 0.0][k]
+            }
+        });
+        let depth = Image::from_fn(w, h, 1, |x, y, _| if x + y < 9 { 1.0 } else { 2.0 });
+        let set = RenderSet::new(color)
+            .with(Feature::Albedo, albedo)
+            .unwrap()
+            .with(Feature::Normal, normal)
+            .unwrap()
+            .with(Feature::Depth, depth)
+            .unwrap();
+        let (color, features) = (&set.color, &set.features);
+        let scalar = noise::estimate_with(Kernel::Scalar, color, features);
+        let fast = noise::estimate_with(Kernel::detect(), color, features);
+        assert_eq!(bits(scalar.data()), bits(fast.data()), "{w}x{h}: estimate");
+        assert!(fast.data().iter().all(|v| v.is_finite() && *v >= 0.0));
+        let filtered = Image::from_fn(w, h, 3, |x, y, c| {
+            color.data()[(y * w + x) * 3 + c] * (0.5 + ((x + 2 * y) % 3) as f32)
+        });
+        for leak in [4.0, 1e6] {
+            let keep =
+                |k| noise::keep_weights_with(k, color, &filtered, &fast, features, 2.0, leak);
+            let (a, b) = (keep(Kernel::Scalar), keep(Kernel::detect()));
+            assert_eq!(bits(&a), bits(&b), "{w}x{h}: blend weights");
+            assert!(b.iter().all(|v| v.is_finite() && (0.0..=1.0).contains(v)));
+        }
+    }
+}

@@ -266,3 +266,42 @@ fn bad_keys_are_named() {
         assert!(err.contains(key), "{text}: {err}");
     }
 }
+
+#[test]
+fn both_kernels_give_the_same_bits() {
+    for (w, h) in [(1, 1), (2, 3), (5, 4), (23, 17), (41, 9)] {
+        let albedo = few_sample(&two_regions(w, h), 2, 0.3, 5);
+        let normal = Image::from_fn(w, h, 3, |x, y, k| {
+            // Unknown (all-zero) normals on a diagonal, noisy unit normals elsewhere.
+            if (x + y) % 5 == 0 {
+                0.0
+            } else {
+                [0.1 * ((x * 7 + y) % 3) as f32, 0.2, 0.97][k]
+            }
+        });
+        let depth = Image::from_fn(w, h, 1, |x, y, _| {
+            1.0 + 0.01 * ((x * 13 + y * 7) % 5) as f32
+        });
+        for (img, kind) in [
+            (&albedo, Kind::Plain),
+            (&normal, Kind::Normal),
+            (&depth, Kind::Depth),
+        ] {
+            for keep in [0.65, 0.3] {
+                let scalar = prefilter::variance_with(gsid::simd::Kernel::Scalar, img, kind, keep);
+                let fast = prefilter::variance_with(gsid::simd::Kernel::detect(), img, kind, keep);
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(
+                    bits(&scalar),
+                    bits(&fast),
+                    "{w}x{h} {kind:?} keep {keep}: variance"
+                );
+                let p = Params { keep, ..params() };
+                let a = prefilter::filter_with(gsid::simd::Kernel::Scalar, img, &fast, kind, &p);
+                let b = prefilter::filter_with(gsid::simd::Kernel::detect(), img, &fast, kind, &p);
+                assert_eq!(bits(a.data()), bits(b.data()), "{w}x{h} {kind:?}: filter");
+                assert!(b.data().iter().all(|v| v.is_finite()));
+            }
+        }
+    }
+}
