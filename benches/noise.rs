@@ -1,11 +1,16 @@
-//! The noise estimate (docs/ALGORITHM.md §8) and the blend's keep weights, which every preset runs
-//! at full size: pixels per second on a 4 spp fixture.
+//! The noise estimate (docs/ALGORITHM.md §8), the blend's keep weights and the albedo prefilter,
+//! which every preset runs at full size: pixels per second on a 4 spp fixture, with the kernel
+//! this CPU runs (AVX2 where it has it) and the portable one (the same bits).
 //!
 //! Run: `cargo bench --bench noise`.
 
 use std::path::Path;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use gsid::prefilter::{self, Kind};
+use gsid::render_set::Feature;
+use gsid::simd::Kernel;
+use gsid::stages::prefilter::PrefilterParams;
 use gsid::{condition, io, noise};
 
 fn bench_noise(c: &mut Criterion) {
@@ -24,10 +29,27 @@ fn bench_noise(c: &mut Criterion) {
     let mut group = c.benchmark_group(format!("noise, {w}x{h} textured 4 spp"));
     group.throughput(Throughput::Elements((w * h) as u64));
     group.sample_size(30);
-    group.bench_function("estimate", |b| b.iter(|| noise::estimate(color, features)));
-    group.bench_function("keep_weights", |b| {
-        b.iter(|| noise::keep_weights(color, &filtered, &variance, features, 2.0, 4.0))
-    });
+    let albedo = features
+        .get(Feature::Albedo)
+        .expect("the fixture has albedo");
+    let p = PrefilterParams::default().kernel_params();
+    let albedo_variance = prefilter::variance(albedo, Kind::Plain, p.keep);
+    for (name, kernel) in [("", Kernel::detect()), (" (portable)", Kernel::Scalar)] {
+        group.bench_function(format!("estimate{name}"), |b| {
+            b.iter(|| noise::estimate_with(kernel, color, features))
+        });
+        group.bench_function(format!("keep_weights{name}"), |b| {
+            b.iter(|| {
+                noise::keep_weights_with(kernel, color, &filtered, &variance, features, 2.0, 4.0)
+            })
+        });
+        group.bench_function(format!("prefilter variance{name}"), |b| {
+            b.iter(|| prefilter::variance_with(kernel, albedo, Kind::Plain, p.keep))
+        });
+        group.bench_function(format!("prefilter filter{name}"), |b| {
+            b.iter(|| prefilter::filter_with(kernel, albedo, &albedo_variance, Kind::Plain, &p))
+        });
+    }
     group.finish();
 }
 

@@ -105,38 +105,17 @@ impl<'a> Surface<'a> {
         let (forward, backward): (Vec<_>, Vec<_>) = mates
             .offsets()
             .partition(|&(_, dx, dy)| dy > 0 || (dy == 0 && dx >= 0));
-        // For row y and cell (dx, dy): the columns whose neighbour is inside, and that
-        // neighbour's index at the first of them.
-        let run = |y: usize, dx: isize, dy: isize| {
-            let ny = y as isize + dy;
-            let lo = (-dx).max(0) as usize;
-            let hi = (w as isize - dx).clamp(0, w as isize) as usize;
-            (ny >= 0 && (ny as usize) < h && lo < hi)
-                .then(|| (lo, hi, (ny * w as isize + lo as isize + dx) as usize))
-        };
         let row = w.max(1);
         let mut fwd = vec![0u64; w * h];
-        fwd.par_chunks_mut(row).enumerate().for_each(|(y, bits)| {
-            for &(bit, dx, dy) in &forward {
-                let Some((lo, hi, j0)) = run(y, dx, dy) else {
-                    continue;
-                };
-                let (i0, n) = (y * w + lo, hi - lo);
-                let p: [&[f32]; KEYS] = std::array::from_fn(|k| &planes[k][i0..i0 + n]);
-                let q: [&[f32]; KEYS] = std::array::from_fn(|k| &planes[k][j0..j0 + n]);
-                for (x, b) in bits[lo..hi].iter_mut().enumerate() {
-                    let same = same_key(
-                        &std::array::from_fn(|k| p[k][x]),
-                        &std::array::from_fn(|k| q[k][x]),
-                    );
-                    *b |= (same as u64) << bit;
-                }
-            }
+        let kernel = Kernel::detect();
+        fwd.par_chunks_mut(row).enumerate().for_each(|(y, out)| {
+            let (planes, forward) = (&planes, forward.as_slice());
+            row_kernel!(kernel, forward_row(planes: &[Vec<f32>; KEYS], forward: &[(u32, isize, isize)], h: usize, y: usize, out: &mut [u64]))
         });
         let mut bits = fwd.clone();
         bits.par_chunks_mut(row).enumerate().for_each(|(y, bits)| {
             for &(bit, dx, dy) in &backward {
-                let Some((lo, hi, j0)) = run(y, dx, dy) else {
+                let Some((lo, hi, j0)) = run(w, h, y, dx, dy) else {
                     continue;
                 };
                 for (b, &f) in bits[lo..hi].iter_mut().zip(&fwd[j0..j0 + hi - lo]) {
@@ -165,6 +144,47 @@ impl<'a> Surface<'a> {
             out[k] = v / (s[k] * s[k]);
         }
         out
+    }
+}
+
+/// For row `y` of a `w`×`h` image and cell (dx, dy): the columns whose neighbour is inside, and
+/// that neighbour's index at the first of them.
+#[inline(always)]
+fn run(w: usize, h: usize, y: usize, dx: isize, dy: isize) -> Option<(usize, usize, usize)> {
+    let ny = y as isize + dy;
+    let lo = (-dx).max(0) as usize;
+    let hi = (w as isize - dx).clamp(0, w as isize) as usize;
+    (ny >= 0 && (ny as usize) < h && lo < hi)
+        .then(|| (lo, hi, (ny * w as isize + lo as isize + dx) as usize))
+}
+
+/// The `forward` cells' bits of the pixels of row `y` (`out`): `same_key` over contiguous runs of
+/// pixels, so the tests run in vector lanes.
+#[inline(always)]
+fn forward_row(
+    planes: &[Vec<f32>; KEYS],
+    forward: &[(u32, isize, isize)],
+    h: usize,
+    y: usize,
+    out: &mut [u64],
+) {
+    let w = out.len();
+    for &(bit, dx, dy) in forward {
+        let Some((lo, hi, j0)) = run(w, h, y, dx, dy) else {
+            continue;
+        };
+        let (i0, n) = (y * w + lo, hi - lo);
+        let p: [&[f32]; KEYS] = std::array::from_fn(|k| &planes[k][i0..i0 + n]);
+        let q: [&[f32]; KEYS] = std::array::from_fn(|k| &planes[k][j0..j0 + n]);
+        for (x, b) in out[lo..hi].iter_mut().enumerate() {
+            let mut a = [0.0f32; KEYS];
+            let mut c = [0.0f32; KEYS];
+            for k in 0..KEYS {
+                a[k] = p[k][x];
+                c[k] = q[k][x];
+            }
+            *b |= (same_key(&a, &c) as u64) << bit;
+        }
     }
 }
 
@@ -282,7 +302,9 @@ pub fn estimate_with(kernel: Kernel, color: &Image, features: &FeatureSet) -> Im
     // Brought to albedo 1: bringing a neighbour to a pixel's albedo is then one factor per
     // pixel, applied in `smooth`.
     let c = color.data();
-    let flat = Padded::new((w, h), 3, |i, k| c[3 * i + k] as f64 / surface.scale(i)[k]);
+    let flat = Padded::new((w, h), 3, trim::RADIUS as usize, |i, k| {
+        c[3 * i + k] as f64 / surface.scale(i)[k]
+    });
     let mates = surface.mates(w, h, SMOOTH_RADIUS as usize);
     let mut raw = vec![([0.0; 3], 0); w * h];
     raw.par_chunks_mut(w.max(1))
@@ -660,7 +682,7 @@ pub fn keep_weights_with(
     let surface = Surface::new(features, (w, h));
     let (c, f, v) = (color.data(), filtered.data(), variance.data());
     let mates = surface.mates(w, h, BLEND_RADIUS as usize);
-    let diff2 = Padded::new((w, h), 1, |i, _| {
+    let diff2 = Padded::new((w, h), 1, trim::RADIUS as usize, |i, _| {
         (0..3)
             .map(|k| {
                 let d = f[3 * i + k] as f64 - c[3 * i + k] as f64;

@@ -65,7 +65,7 @@ pub fn variance_with(kernel: Kernel, img: &Image, kind: Kind, keep: f64) -> Vec<
     let c = img.channels();
     // The channels, then 1 where a pixel takes part (inside the image and known), else 0.
     let data = img.data();
-    let planes = Padded::new((w, h), c + 1, |i, k| {
+    let planes = Padded::new((w, h), c + 1, trim::RADIUS as usize, |i, k| {
         if k < c {
             data[i * c + k] as f64
         } else {
@@ -178,132 +178,181 @@ pub fn filter_with(kernel: Kernel, img: &Image, variance: &[f32], kind: Kind, p:
     let (w, h) = img.dims();
     let c = img.channels();
     let data = img.data();
-    let known: Vec<bool> = (0..w * h).map(|i| known(img, kind, i)).collect();
-    let active = |i: usize| variance[i] > 0.0 && known[i];
     let (r, f) = (p.radius as isize, p.patch as isize);
-    let k2 = p.strength * p.strength;
-    let terms = ((2 * f + 1) * (2 * f + 1)) as f64 * c as f64;
     // A patch cell beyond the image reads the nearest edge pixel: planes with a margin that
     // repeats it make every offset's terms one contiguous run of both patches' cells.
     let edge = Edge::new(w, h, (r + f) as usize);
-    let chans: Vec<Vec<f64>> = (0..c)
-        .map(|k| edge.plane(|i| data[i * c + k] as f64))
-        .collect();
-    let var = edge.plane(|i| variance[i] as f64);
-    let eps = edge.plane(|i| match kind {
-        Kind::Depth => (EPS * (data[i] as f64).powi(2)).max(f64::MIN_POSITIVE),
-        Kind::Plain | Kind::Normal => EPS,
-    });
+    let nl = NlMeans {
+        kernel: kernel.or_portable(),
+        kind,
+        dims: (w, h, c),
+        data,
+        variance,
+        known: (0..w * h).map(|i| known(img, kind, i)).collect(),
+        r,
+        f,
+        k2: p.strength * p.strength,
+        chans: (0..c)
+            .map(|k| edge.plane(|i| data[i * c + k] as f64))
+            .collect(),
+        var: edge.plane(|i| variance[i] as f64),
+        eps: edge.plane(|i| match kind {
+            Kind::Depth => (EPS * (data[i] as f64).powi(2)).max(f64::MIN_POSITIVE),
+            Kind::Plain | Kind::Normal => EPS,
+        }),
+        edge,
+    };
     let mut out = img.par_clone();
     out.data_mut()
         .par_chunks_mut(BAND * w * c)
         .enumerate()
         .for_each(|(band, rows)| {
-            let y0 = band * BAND;
-            let y1 = (y0 + BAND).min(h);
-            // Only the columns an active pixel (and its patch) reaches are computed.
-            let Some(x_lo) = (0..w).find(|&x| (y0..y1).any(|y| active(y * w + x))) else {
-                return;
-            };
-            let x_hi = (0..w)
-                .rev()
-                .find(|&x| (y0..y1).any(|y| active(y * w + x)))
-                .expect("an active column exists");
-            // Terms over the band's rows and columns widened by the patch radius.
-            let (tw, th) = (w + 2 * f as usize, y1 - y0 + 2 * f as usize);
-            let run = x_hi + 2 * f as usize + 1 - x_lo;
-            let mut term = vec![0.0f64; tw * th];
-            let mut across = vec![0.0f64; w * th];
-            let mut sum = vec![[0.0f64; 3]; (y1 - y0) * w];
-            let mut total = vec![0.0f64; (y1 - y0) * w];
-            let mut weight = vec![0.0f32; x_hi + 1 - x_lo];
-            for oy in -r..=r {
-                for ox in -r..=r {
-                    for ty in 0..th {
-                        let py = y0 as isize + ty as isize - f;
-                        let a = edge.index(x_lo as isize - f, py);
-                        let b = edge.index(x_lo as isize - f + ox, py + oy);
-                        let row = &mut term[ty * tw + x_lo..ty * tw + x_lo + run];
-                        row.fill(0.0);
-                        for ch in &chans {
-                            let (ua, ub) = (&ch[a..a + run], &ch[b..b + run]);
-                            for ((t, &u), &v) in row.iter_mut().zip(ua).zip(ub) {
-                                let d = u - v;
-                                *t += d * d;
-                            }
-                        }
-                        let (va, vb, ea) = (&var[a..a + run], &var[b..b + run], &eps[a..a + run]);
-                        for (((t, &va), &vb), &ea) in row.iter_mut().zip(va).zip(vb).zip(ea) {
-                            let expected = va + if vb < va { vb } else { va };
-                            let scale = ea + k2 * (va + vb);
-                            *t = (*t - c as f64 * expected) / scale;
-                        }
-                    }
-                    for ty in 0..th {
-                        let row = &term[ty * tw..(ty + 1) * tw];
-                        for x in x_lo..=x_hi {
-                            across[ty * w + x] = row[x..x + 2 * f as usize + 1].iter().sum();
-                        }
-                    }
-                    for y in y0..y1 {
-                        let (ny, ly) = (y as isize + oy, y - y0);
-                        if ny < 0 || ny >= h as isize {
-                            continue;
-                        }
-                        // Who takes part: an active pixel and a known partner inside the image;
-                        // the others weigh exp(−∞) = 0.
-                        let takes_part = |x: usize| {
-                            let nx = x as isize + ox;
-                            nx >= 0
-                                && nx < w as isize
-                                && active(y * w + x)
-                                && known[ny as usize * w + nx as usize]
-                        };
-                        for (x, e) in (x_lo..=x_hi).zip(weight.iter_mut()) {
-                            *e = if takes_part(x) {
-                                let dist: f64 = (0..=2 * f as usize)
-                                    .map(|dy| across[(ly + dy) * w + x])
-                                    .sum();
-                                -(dist / terms).max(0.0) as f32
-                            } else {
-                                f32::NEG_INFINITY
-                            };
-                        }
-                        exp_neg_row(kernel, &mut weight);
-                        for (x, &e) in (x_lo..=x_hi).zip(weight.iter()) {
-                            if e <= 0.0 {
-                                continue;
-                            }
-                            let j = (ny * w as isize + x as isize + ox) as usize;
-                            let e = e as f64;
-                            let acc = &mut sum[ly * w + x];
-                            for ch in 0..c {
-                                acc[ch] += e * data[j * c + ch] as f64;
-                            }
-                            total[ly * w + x] += e;
-                        }
-                    }
-                }
-            }
-            for (l, px) in rows.chunks_exact_mut(c).enumerate() {
-                if !active(y0 * w + l) {
-                    continue;
-                }
-                // The pixel itself is its own partner at offset 0, weight exp(0) = 1, so total ≥ 1.
-                let mut v: [f64; 3] = std::array::from_fn(|ch| sum[l][ch] / total[l]);
-                if kind == Kind::Normal {
-                    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                    if len <= 1e-6 {
-                        continue;
-                    }
-                    v.iter_mut().for_each(|x| *x /= len);
-                }
-                for (o, x) in px.iter_mut().zip(v) {
-                    *o = x as f32;
-                }
-            }
+            let nl = &nl;
+            row_kernel!(nl.kernel, filter_band(nl: &NlMeans, band: usize, rows: &mut [f32]))
         });
     out
+}
+
+/// What every band of [`filter_with`] reads.
+struct NlMeans<'a> {
+    kernel: Kernel,
+    kind: Kind,
+    /// Width, height, channels.
+    dims: (usize, usize, usize),
+    data: &'a [f32],
+    variance: &'a [f32],
+    known: Vec<bool>,
+    /// Search and patch radius.
+    r: isize,
+    f: isize,
+    /// k².
+    k2: f64,
+    /// Edge-padded planes: the channels, the variance and ε.
+    chans: Vec<Vec<f64>>,
+    var: Vec<f64>,
+    eps: Vec<f64>,
+    edge: Edge,
+}
+
+impl NlMeans<'_> {
+    /// Whether pixel i is filtered: known, with some noise.
+    #[inline(always)]
+    fn active(&self, i: usize) -> bool {
+        self.variance[i] > 0.0 && self.known[i]
+    }
+}
+
+/// Filters the `BAND` rows of band `band` into `rows`.
+#[inline(always)]
+fn filter_band(nl: &NlMeans, band: usize, rows: &mut [f32]) {
+    let ((w, h, c), (r, f), k2) = (nl.dims, (nl.r, nl.f), nl.k2);
+    let (data, known, kind, kernel) = (nl.data, &nl.known, nl.kind, nl.kernel);
+    let (chans, var, eps, edge) = (&nl.chans, &nl.var, &nl.eps, &nl.edge);
+    let active = |i: usize| nl.active(i);
+    let terms = ((2 * f + 1) * (2 * f + 1)) as f64 * c as f64;
+    let y0 = band * BAND;
+    let y1 = (y0 + BAND).min(h);
+    // Only the columns an active pixel (and its patch) reaches are computed.
+    let Some(x_lo) = (0..w).find(|&x| (y0..y1).any(|y| active(y * w + x))) else {
+        return;
+    };
+    let x_hi = (0..w)
+        .rev()
+        .find(|&x| (y0..y1).any(|y| active(y * w + x)))
+        .expect("an active column exists");
+    // Terms over the band's rows and columns widened by the patch radius.
+    let (tw, th) = (w + 2 * f as usize, y1 - y0 + 2 * f as usize);
+    let run = x_hi + 2 * f as usize + 1 - x_lo;
+    let mut term = vec![0.0f64; tw * th];
+    let mut across = vec![0.0f64; w * th];
+    let mut sum = vec![[0.0f64; 3]; (y1 - y0) * w];
+    let mut total = vec![0.0f64; (y1 - y0) * w];
+    let mut weight = vec![0.0f32; x_hi + 1 - x_lo];
+    for oy in -r..=r {
+        for ox in -r..=r {
+            for ty in 0..th {
+                let py = y0 as isize + ty as isize - f;
+                let a = edge.index(x_lo as isize - f, py);
+                let b = edge.index(x_lo as isize - f + ox, py + oy);
+                let row = &mut term[ty * tw + x_lo..ty * tw + x_lo + run];
+                row.fill(0.0);
+                for ch in chans.iter() {
+                    let (ua, ub) = (&ch[a..a + run], &ch[b..b + run]);
+                    for ((t, &u), &v) in row.iter_mut().zip(ua).zip(ub) {
+                        let d = u - v;
+                        *t += d * d;
+                    }
+                }
+                let (va, vb, ea) = (&var[a..a + run], &var[b..b + run], &eps[a..a + run]);
+                for (((t, &va), &vb), &ea) in row.iter_mut().zip(va).zip(vb).zip(ea) {
+                    let expected = va + if vb < va { vb } else { va };
+                    let scale = ea + k2 * (va + vb);
+                    *t = (*t - c as f64 * expected) / scale;
+                }
+            }
+            for ty in 0..th {
+                let row = &term[ty * tw..(ty + 1) * tw];
+                for x in x_lo..=x_hi {
+                    across[ty * w + x] = row[x..x + 2 * f as usize + 1].iter().sum();
+                }
+            }
+            for y in y0..y1 {
+                let (ny, ly) = (y as isize + oy, y - y0);
+                if ny < 0 || ny >= h as isize {
+                    continue;
+                }
+                // Who takes part: an active pixel and a known partner inside the image;
+                // the others weigh exp(−∞) = 0.
+                let takes_part = |x: usize| {
+                    let nx = x as isize + ox;
+                    nx >= 0
+                        && nx < w as isize
+                        && active(y * w + x)
+                        && known[ny as usize * w + nx as usize]
+                };
+                for (x, e) in (x_lo..=x_hi).zip(weight.iter_mut()) {
+                    *e = if takes_part(x) {
+                        let dist: f64 = (0..=2 * f as usize)
+                            .map(|dy| across[(ly + dy) * w + x])
+                            .sum();
+                        -(dist / terms).max(0.0) as f32
+                    } else {
+                        f32::NEG_INFINITY
+                    };
+                }
+                exp_neg_row(kernel, &mut weight);
+                for (x, &e) in (x_lo..=x_hi).zip(weight.iter()) {
+                    if e <= 0.0 {
+                        continue;
+                    }
+                    let j = (ny * w as isize + x as isize + ox) as usize;
+                    let e = e as f64;
+                    let acc = &mut sum[ly * w + x];
+                    for ch in 0..c {
+                        acc[ch] += e * data[j * c + ch] as f64;
+                    }
+                    total[ly * w + x] += e;
+                }
+            }
+        }
+    }
+    for (l, px) in rows.chunks_exact_mut(c).enumerate() {
+        if !active(y0 * w + l) {
+            continue;
+        }
+        // The pixel itself is its own partner at offset 0, weight exp(0) = 1, so total ≥ 1.
+        let mut v: [f64; 3] = std::array::from_fn(|ch| sum[l][ch] / total[l]);
+        if kind == Kind::Normal {
+            let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            if len <= 1e-6 {
+                continue;
+            }
+            v.iter_mut().for_each(|x| *x /= len);
+        }
+        for (o, x) in px.iter_mut().zip(v) {
+            *o = x as f32;
+        }
+    }
 }
 
 /// Planes of a `w`×`h` image with a margin of `margin` cells on every side that repeat the

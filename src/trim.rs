@@ -62,21 +62,24 @@ pub(crate) const PAIRS: [[(isize, isize); 2]; MAX_PAIRS] = {
     pairs
 };
 
-/// Per-pixel planes with a margin of `RADIUS` zeros on every side, so the pixels of a row read
-/// their windows side by side, without bounds checks.
+/// Per-pixel planes with a margin of zeros on every side, so the pixels of a row read their
+/// windows side by side, without bounds checks.
 pub(crate) struct Padded {
     pub(crate) planes: Vec<Vec<f64>>,
     stride: usize,
+    margin: usize,
 }
 
 impl Padded {
-    /// `planes` planes of a `w`×`h` image, plane k of pixel i holding `value(i, k)`.
+    /// `planes` planes of a `w`×`h` image with a margin of `margin` cells, plane k of pixel i
+    /// holding `value(i, k)`.
     pub(crate) fn new(
         (w, h): (usize, usize),
         planes: usize,
+        margin: usize,
         value: impl Fn(usize, usize) -> f64 + Sync,
     ) -> Self {
-        let m = RADIUS as usize;
+        let m = margin;
         let stride = w + 2 * m;
         let planes = (0..planes)
             .map(|k| {
@@ -94,13 +97,18 @@ impl Padded {
                 plane
             })
             .collect();
-        Padded { planes, stride }
+        Padded {
+            planes,
+            stride,
+            margin,
+        }
     }
 
-    /// Index in a plane of the cell (dx, dy) from pixel (x, y), |dx|, |dy| ≤ `RADIUS`.
+    /// Index in a plane of the cell (dx, dy) from pixel (x, y), |dx|, |dy| ≤ the margin.
     #[inline(always)]
     pub(crate) fn at(&self, x: usize, y: usize, (dx, dy): (isize, isize)) -> usize {
-        ((y as isize + RADIUS + dy) * self.stride as isize + x as isize + RADIUS + dx) as usize
+        let m = self.margin as isize;
+        ((y as isize + m + dy) * self.stride as isize + x as isize + m + dx) as usize
     }
 }
 
