@@ -65,8 +65,9 @@ pub mod spec;
 pub mod stages;
 #[cfg(feature = "cli")]
 pub mod study;
-pub mod trim;
+pub(crate) mod trim;
 pub mod walk;
+pub(crate) mod window_bits;
 
 pub use crate::buffers::Buffers;
 pub use crate::error::{Error, Result};

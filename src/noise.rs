@@ -19,6 +19,7 @@ use crate::image::Image;
 use crate::render_set::{Feature, FeatureSet};
 use crate::simd::{row_kernel, Kernel};
 use crate::trim::{self, Padded, LANES, MAX_PAIRS, PAIRS};
+use crate::window_bits;
 
 /// Radius of the window of the raw estimate (5×5): the adjacent pairs are `trim::PAIRS`.
 const RAW_RADIUS: isize = trim::RADIUS;
@@ -95,35 +96,13 @@ impl<'a> Surface<'a> {
     /// first, then the backward half read from the neighbours' forward halves. Row by row and
     /// cell by cell, so the tests run over contiguous runs of pixels.
     fn mates(&self, w: usize, h: usize, radius: usize) -> Mates {
-        assert!(
-            radius <= 3,
-            "a window of radius {radius} has more cells than a u64 has bits"
-        );
         let mut mates = Mates::new(w, radius);
         let planes = self.planes(w * h);
-        let last = (mates.side * mates.side - 1) as u32;
-        let (forward, backward): (Vec<_>, Vec<_>) = mates
-            .offsets()
-            .partition(|&(_, dx, dy)| dy > 0 || (dy == 0 && dx >= 0));
-        let row = w.max(1);
-        let mut fwd = vec![0u64; w * h];
         let kernel = Kernel::detect();
-        fwd.par_chunks_mut(row).enumerate().for_each(|(y, out)| {
-            let (planes, forward) = (&planes, forward.as_slice());
-            row_kernel!(kernel, forward_row(planes: &[Vec<f32>; KEYS], forward: &[(u32, isize, isize)], h: usize, y: usize, out: &mut [u64]))
+        mates.bits = window_bits::window_bits(w, h, radius, true, |i0, j0, bit, out| {
+            let planes = &planes;
+            row_kernel!(kernel, same_key_run(planes: &[Vec<f32>; KEYS], i0: usize, j0: usize, bit: u32, out: &mut [u64]))
         });
-        let mut bits = fwd.clone();
-        bits.par_chunks_mut(row).enumerate().for_each(|(y, bits)| {
-            for &(bit, dx, dy) in &backward {
-                let Some((lo, hi, j0)) = run(w, h, y, dx, dy) else {
-                    continue;
-                };
-                for (b, &f) in bits[lo..hi].iter_mut().zip(&fwd[j0..j0 + hi - lo]) {
-                    *b |= (f >> (last - bit) & 1) << bit;
-                }
-            }
-        });
-        mates.bits = bits;
         mates
     }
 
@@ -147,44 +126,21 @@ impl<'a> Surface<'a> {
     }
 }
 
-/// For row `y` of a `w`×`h` image and cell (dx, dy): the columns whose neighbour is inside, and
-/// that neighbour's index at the first of them.
+/// Sets `bit` of `out[t]` where pixels i0 + t and j0 + t lie on one surface (`same_key`), over
+/// a run of pixels, so the tests run in vector lanes.
 #[inline(always)]
-fn run(w: usize, h: usize, y: usize, dx: isize, dy: isize) -> Option<(usize, usize, usize)> {
-    let ny = y as isize + dy;
-    let lo = (-dx).max(0) as usize;
-    let hi = (w as isize - dx).clamp(0, w as isize) as usize;
-    (ny >= 0 && (ny as usize) < h && lo < hi)
-        .then(|| (lo, hi, (ny * w as isize + lo as isize + dx) as usize))
-}
-
-/// The `forward` cells' bits of the pixels of row `y` (`out`): `same_key` over contiguous runs of
-/// pixels, so the tests run in vector lanes.
-#[inline(always)]
-fn forward_row(
-    planes: &[Vec<f32>; KEYS],
-    forward: &[(u32, isize, isize)],
-    h: usize,
-    y: usize,
-    out: &mut [u64],
-) {
-    let w = out.len();
-    for &(bit, dx, dy) in forward {
-        let Some((lo, hi, j0)) = run(w, h, y, dx, dy) else {
-            continue;
-        };
-        let (i0, n) = (y * w + lo, hi - lo);
-        let p: [&[f32]; KEYS] = std::array::from_fn(|k| &planes[k][i0..i0 + n]);
-        let q: [&[f32]; KEYS] = std::array::from_fn(|k| &planes[k][j0..j0 + n]);
-        for (x, b) in out[lo..hi].iter_mut().enumerate() {
-            let mut a = [0.0f32; KEYS];
-            let mut c = [0.0f32; KEYS];
-            for k in 0..KEYS {
-                a[k] = p[k][x];
-                c[k] = q[k][x];
-            }
-            *b |= (same_key(&a, &c) as u64) << bit;
+fn same_key_run(planes: &[Vec<f32>; KEYS], i0: usize, j0: usize, bit: u32, out: &mut [u64]) {
+    let n = out.len();
+    let p: [&[f32]; KEYS] = std::array::from_fn(|k| &planes[k][i0..i0 + n]);
+    let q: [&[f32]; KEYS] = std::array::from_fn(|k| &planes[k][j0..j0 + n]);
+    for (x, b) in out.iter_mut().enumerate() {
+        let mut a = [0.0f32; KEYS];
+        let mut c = [0.0f32; KEYS];
+        for k in 0..KEYS {
+            a[k] = p[k][x];
+            c[k] = q[k][x];
         }
+        *b |= (same_key(&a, &c) as u64) << bit;
     }
 }
 
@@ -230,18 +186,6 @@ impl Mates {
             side,
             offset,
         }
-    }
-
-    /// Every cell of the window: (bit, dx, dy).
-    fn offsets(&self) -> impl Iterator<Item = (u32, isize, isize)> + '_ {
-        let r = (self.side / 2) as isize;
-        (0..self.side * self.side).map(move |b| {
-            (
-                b as u32,
-                (b % self.side) as isize - r,
-                (b / self.side) as isize - r,
-            )
-        })
     }
 
     /// Pixel i's surface-mates, in raster order of its window.
