@@ -19,7 +19,7 @@ use rayon::prelude::*;
 use crate::fastmath::exp_neg_row;
 use crate::features::{distance_row, FeaturePlanes, Features};
 use crate::image::Image;
-use crate::simd::Kernel;
+use crate::simd::{row_kernel, Kernel};
 
 /// The features of image rows `rows`, as [`Features::build_rows`] makes them: a pass asks for one
 /// band (plus halo) at a time, so the image's features (64 bytes a pixel) never exist at once.
@@ -193,9 +193,7 @@ fn add_tap(
     acc: AccRange,
 ) {
     let n = e.len();
-    for v in e.iter_mut() {
-        *v = -(*v * *v) * inv;
-    }
+    row_kernel!(kernel, scale_distances(e: &mut [f32], inv: f32));
     exp_neg_row(kernel, e);
     let (red, green, blue) = (
         cols.lane(0, other, n),
@@ -203,6 +201,28 @@ fn add_tap(
         cols.lane(2, other, n),
     );
     let (keep, keep_center) = (cols.lane(3, other, n), cols.lane(3, center, n));
+    let (e, colour, keep) = (&*e, [red, green, blue], [keep, keep_center]);
+    row_kernel!(kernel, accumulate(e: &[f32], tap: f32, colour: [&[f32]; 3], keep: [&[f32]; 2], acc: AccRange))
+}
+
+/// −d²·inv in place: the exponent of a tap's weight.
+#[inline(always)]
+fn scale_distances(e: &mut [f32], inv: f32) {
+    for v in e.iter_mut() {
+        *v = -(*v * *v) * inv;
+    }
+}
+
+/// Adds a tap's weighted colour to the sums: weight = `tap` · e · both pixels' keep weights.
+#[inline(always)]
+fn accumulate(
+    e: &[f32],
+    tap: f32,
+    [red, green, blue]: [&[f32]; 3],
+    [keep, keep_center]: [&[f32]; 2],
+    acc: AccRange,
+) {
+    let n = e.len();
     let AccRange { r, g, b, weight } = acc;
     let (r, g, b, weight) = (&mut r[..n], &mut g[..n], &mut b[..n], &mut weight[..n]);
     for x in 0..n {
