@@ -86,6 +86,17 @@ fn the_estimate_follows_the_renderers_true_noise() {
     assert!(over.is_empty(), "median errors out of bounds: {over:?}");
 }
 
+/// A render set of colour, albedo, normal and depth.
+fn four_buffer_set(color: Image, albedo: Image, normal: Image, depth: Image) -> RenderSet {
+    RenderSet::new(color)
+        .with(Feature::Albedo, albedo)
+        .unwrap()
+        .with(Feature::Normal, normal)
+        .unwrap()
+        .with(Feature::Depth, depth)
+        .unwrap()
+}
+
 /// A small render set: the left half a 1 spp-like noisy wall, the right half converged, with a
 /// variance buffer `variance` (None: the estimate from the image is used).
 fn half_noisy(variance: Option<f32>) -> Buffers {
@@ -110,13 +121,7 @@ fn half_noisy(variance: Option<f32>) -> Buffers {
     let albedo = Image::filled(w, h, 3, 0.7);
     let normal = Image::from_fn(w, h, 3, |_, _, k| if k == 2 { 1.0 } else { 0.0 });
     let depth = Image::filled(w, h, 1, 3.0);
-    let mut set = RenderSet::new(color)
-        .with(Feature::Albedo, albedo)
-        .unwrap()
-        .with(Feature::Normal, normal)
-        .unwrap()
-        .with(Feature::Depth, depth)
-        .unwrap();
+    let mut set = four_buffer_set(color, albedo, normal, depth);
     set.noise.variance = variance.map(|v| Image::filled(w, h, 3, v));
     Buffers::from(set)
 }
@@ -235,13 +240,7 @@ fn both_kernels_give_the_same_bits() {
             }
         });
         let depth = Image::from_fn(w, h, 1, |x, y, _| if x + y < 9 { 1.0 } else { 2.0 });
-        let set = RenderSet::new(color)
-            .with(Feature::Albedo, albedo)
-            .unwrap()
-            .with(Feature::Normal, normal)
-            .unwrap()
-            .with(Feature::Depth, depth)
-            .unwrap();
+        let set = four_buffer_set(color, albedo, normal, depth);
         let (color, features) = (&set.color, &set.features);
         let scalar = noise::estimate_with(Kernel::Scalar, color, features);
         let fast = noise::estimate_with(Kernel::detect(), color, features);
