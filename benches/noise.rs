@@ -39,9 +39,7 @@ fn bench_noise(c: &mut Criterion) {
             b.iter(|| noise::estimate_with(kernel, color, features))
         });
         group.bench_function(format!("keep_weights{name}"), |b| {
-            b.iter(|| {
-                noise::keep_weights_with(kernel, color, &filtered, &variance, features, 2.0, 4.0)
-            })
+            b.iter(|| noise::keep_weights(kernel, color, &filtered, &variance, features, 2.0, 4.0))
         });
         group.bench_function(format!("prefilter variance{name}"), |b| {
             b.iter(|| prefilter::variance_with(kernel, albedo, Kind::Plain, p.keep))

@@ -592,28 +592,9 @@ const BLEND_TAPS: usize = (2 * BLEND_RADIUS as usize + 1).pow(2);
 /// v / (v + b²) of a filter with bias b on a pixel of noise variance v. E[(f − c)²] ≈ b² + v, so
 /// b² + v is estimated by the mean of (f − c)² over the pixel's surface-mates, and the weight is
 /// v / max(that, v): where the filter removed only noise it is kept, where it also removed
-/// signal (texture, a sharp highlight) the input comes back in proportion.
+/// signal (texture, a sharp highlight) the input comes back in proportion. `kernel` runs the
+/// error estimates (every kernel gives the same bits).
 pub fn keep_weights(
-    color: &Image,
-    filtered: &Image,
-    variance: &Image,
-    features: &FeatureSet,
-    tolerance: f64,
-    leak: f64,
-) -> Vec<f32> {
-    keep_weights_with(
-        Kernel::detect(),
-        color,
-        filtered,
-        variance,
-        features,
-        tolerance,
-        leak,
-    )
-}
-
-/// [`keep_weights`] with a chosen kernel for the error estimates (all give the same bits).
-pub fn keep_weights_with(
     kernel: Kernel,
     color: &Image,
     filtered: &Image,
@@ -748,16 +729,30 @@ mod tests {
         )
     }
 
+    /// The blend's keep weights of `filtered` over [`blend_case`] (tolerance 2).
+    fn blend_case_keep(filtered: &Image, leak: f64) -> Vec<f32> {
+        let (color, variance, set) = blend_case();
+        keep_weights(
+            Kernel::detect(),
+            &color,
+            filtered,
+            &variance,
+            &set,
+            2.0,
+            leak,
+        )
+    }
+
     #[test]
     fn a_rise_beyond_two_sigma_is_taken_back() {
-        let (color, variance, set) = blend_case();
+        let (color, _, _) = blend_case();
         let leak = crate::stages::blend::BlendParams::default().leak;
         // One pixel 3σ brighter than its input, one 3σ darker (a firefly removed).
         let mut filtered = color.clone();
         let (up, down) = (2 * 9 + 2, 6 * 9 + 7);
         filtered.pixel_mut(up).fill(1.3);
         filtered.pixel_mut(down).fill(0.7);
-        let keep = keep_weights(&color, &filtered, &variance, &set, 2.0, leak);
+        let keep = blend_case_keep(&filtered, leak);
         // κ = λ·v / gain²: a rise of exactly 2σ would be kept whole, a larger one shrinks as 1/gain.
         let rise = keep[up] * 0.3;
         assert!(rise <= 0.2, "kept a rise of {rise}, above 2σ = 0.2");
@@ -774,9 +769,8 @@ mod tests {
         // The filter moved every pixel by exactly σ, what removing noise alone does on average. On
         // the 2×2 patch nothing of 4 mates is trimmed, so their mean of (f − c)² is v itself and all
         // of the change is kept; the large-n constant read it as 2.3 v and gave an eighth back.
-        let (color, variance, set) = blend_case();
         let filtered = Image::filled(9, 9, 3, 1.1);
-        let keep = keep_weights(&color, &filtered, &variance, &set, 2.0, 4.0);
+        let keep = blend_case_keep(&filtered, 4.0);
         for (x, y) in [(4, 4), (5, 4), (4, 5), (5, 5)] {
             let k = keep[y * 9 + x];
             assert!(k > 0.999, "patch pixel ({x}, {y}): keep {k}");
@@ -945,7 +939,15 @@ mod tests {
         for bad in [f32::INFINITY, f32::NAN, -1.0] {
             let v = Image::filled(4, 4, 3, bad);
             assert_eq!(tone_level(&black, &v, 1.0), 0.0);
-            let keep = keep_weights(&black, &black, &v, &FeatureSet::default(), 1.5, 4.0);
+            let keep = keep_weights(
+                Kernel::detect(),
+                &black,
+                &black,
+                &v,
+                &FeatureSet::default(),
+                1.5,
+                4.0,
+            );
             assert!(keep.iter().all(|k| *k == 0.0));
         }
     }

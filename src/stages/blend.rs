@@ -110,6 +110,7 @@ impl Stage for BlendStage {
             }
         }
         let keep = noise::keep_weights(
+            crate::simd::Kernel::detect(),
             original,
             filtered,
             variance,
