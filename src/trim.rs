@@ -125,6 +125,10 @@ pub(crate) fn lanes<const L: usize, const N: usize, const T: usize>(
 ) -> [f64; L] {
     // top[r][l]: lane l's (r + 1)-th largest valid value so far (−∞ while there are fewer). The
     // compare-selects are exactly `vmaxpd` and `vminpd`, so with AVX2 a slot is two instructions.
+    debug_assert!(
+        dropped.iter().all(|&d| d <= T),
+        "more dropped than the lists hold"
+    );
     let mut top = [[f64::NEG_INFINITY; L]; T];
     let mut finite = *valid;
     let (mut count, mut zeros) = ([0usize; L], [0usize; L]);
