@@ -52,6 +52,7 @@ pub mod io;
 pub mod metrics;
 pub mod noise;
 pub mod outlier;
+pub(crate) mod padded;
 pub mod pipeline;
 pub mod prefilter;
 pub mod progress;

@@ -16,9 +16,10 @@
 use rayon::prelude::*;
 
 use crate::image::Image;
+use crate::padded::{Margin, Padded};
 use crate::render_set::{Feature, FeatureSet};
 use crate::simd::{row_kernel, Kernel};
-use crate::trim::{self, Padded, LANES, MAX_PAIRS, PAIRS};
+use crate::trim::{self, LANES, MAX_PAIRS, PAIRS};
 use crate::window_bits;
 
 /// Radius of the window of the raw estimate (5×5): the adjacent pairs are `trim::PAIRS`.
@@ -91,10 +92,8 @@ impl<'a> Surface<'a> {
         planes
     }
 
-    /// For every pixel, which pixels of its window of `radius` (at most 3) lie on its surface.
-    /// `same_key` is symmetric, so each pair is tested once: the forward half of every window
-    /// first, then the backward half read from the neighbours' forward halves. Row by row and
-    /// cell by cell, so the tests run over contiguous runs of pixels.
+    /// For every pixel, which pixels of its window of `radius` (at most 3) lie on its surface:
+    /// `same_key` over runs of pixels, each pair once (`window_bits`).
     fn mates(&self, w: usize, h: usize, radius: usize) -> Mates {
         let mut mates = Mates::new(w, radius);
         let planes = self.planes(w * h);
@@ -246,7 +245,7 @@ pub fn estimate_with(kernel: Kernel, color: &Image, features: &FeatureSet) -> Im
     // Brought to albedo 1: bringing a neighbour to a pixel's albedo is then one factor per
     // pixel, applied in `smooth`.
     let c = color.data();
-    let flat = Padded::new((w, h), 3, trim::RADIUS as usize, |i, k| {
+    let flat = Padded::new((w, h), 3, trim::RADIUS as usize, Margin::Zeros, |i, k| {
         c[3 * i + k] as f64 / surface.scale(i)[k]
     });
     let mates = surface.mates(w, h, SMOOTH_RADIUS as usize);
@@ -264,9 +263,16 @@ pub fn estimate_with(kernel: Kernel, color: &Image, features: &FeatureSet) -> Im
 #[inline(always)]
 fn raw_row(flat: &Padded, mates: &Mates, y: usize, out: &mut [([f64; 3], usize)]) {
     let w = out.len();
-    trim::by_lanes!(out, |x| pair_spread::<LANES>(flat, mates, x, y, w), |x| {
-        pair_spread::<1>(flat, mates, x, y, w)[0]
-    },);
+    // The raw window's cells among the mates' bits.
+    let (side, c) = (mates.side as isize, (mates.side / 2) as isize);
+    let window: u64 = (-RAW_RADIUS..=RAW_RADIUS)
+        .flat_map(|dy| (-RAW_RADIUS..=RAW_RADIUS).map(move |dx| (dx, dy)))
+        .fold(0, |m, (dx, dy)| m | 1 << ((dy + c) * side + dx + c));
+    trim::by_lanes!(
+        out,
+        |x| pair_spread::<LANES>(flat, mates, window, x, y, w),
+        |x| pair_spread::<1>(flat, mates, window, x, y, w)[0],
+    );
 }
 
 /// Most pairs a raw estimate trims: `TRIM` of them all.
@@ -371,11 +377,12 @@ fn simpson_nodes() -> &'static [SimpsonNode] {
 
 /// Raw estimates at pixels (x..x + L, y): per lane, a trimmed mean of the squared differences of
 /// adjacent surface-mates in its window (brought to albedo 1), which a smooth change of light
-/// barely enters; with its number of pairs kept (0: too few mates).
+/// barely enters; with its number of pairs kept (0: too few mates in `window`, its cells' bits).
 #[inline(always)]
 fn pair_spread<const L: usize>(
     flat: &Padded,
     mates: &Mates,
+    window: u64,
     x: usize,
     y: usize,
     w: usize,
@@ -409,10 +416,6 @@ fn pair_spread<const L: usize>(
     for k in 0..3 {
         means[k] = trim::lanes::<L, MAX_PAIRS, MOST_TRIMMED>(&d2[k], &valid, dropped);
     }
-    // The raw window's cells among the mates' bits.
-    let window: u64 = (-RAW_RADIUS..=RAW_RADIUS)
-        .flat_map(|dy| (-RAW_RADIUS..=RAW_RADIUS).map(move |dx| (dx, dy)))
-        .fold(0, |m, cell| m | 1 << bit(cell));
     let mut out = [([0.0; 3], 0); L];
     for (l, (var, kept)) in out.iter_mut().enumerate() {
         if (bits[l] & window).count_ones() as usize >= MIN_MATES && n[l] >= 2 {
@@ -607,7 +610,7 @@ pub fn keep_weights(
     let surface = Surface::new(features, (w, h));
     let (c, f, v) = (color.data(), filtered.data(), variance.data());
     let mates = surface.mates(w, h, BLEND_RADIUS as usize);
-    let diff2 = Padded::new((w, h), 1, trim::RADIUS as usize, |i, _| {
+    let diff2 = Padded::new((w, h), 1, trim::RADIUS as usize, Margin::Zeros, |i, _| {
         (0..3)
             .map(|k| {
                 let d = f[3 * i + k] as f64 - c[3 * i + k] as f64;
@@ -704,6 +707,7 @@ fn blend_errors<const L: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::trim::tests::xorshift;
 
     #[test]
     fn trimmed_chi2_means_match_the_tabulated_ones() {
@@ -814,17 +818,6 @@ mod tests {
                 "n = {n}: simulated {simulated}, exact {}",
                 trimmed_chi2(n)
             );
-        }
-    }
-
-    /// A xorshift64 stream: the tests' random numbers, fixed by `seed`.
-    fn xorshift(seed: u64) -> impl FnMut() -> u64 {
-        let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-        move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
         }
     }
 

@@ -14,8 +14,9 @@ use rayon::prelude::*;
 use crate::fastmath::exp_neg_row;
 use crate::image::Image;
 use crate::noise::trimmed_chi2_mean;
+use crate::padded::{Margin, Padded};
 use crate::simd::{row_kernel, Kernel};
-use crate::trim::{self, Padded, LANES, MAX_PAIRS, PAIRS};
+use crate::trim::{self, LANES, MAX_PAIRS, PAIRS};
 
 /// Smallest variance (in the feature's units squared) a patch distance is divided by: a difference
 /// of 1 % of an albedo or normal component is one unit where the estimate reads no noise at all.
@@ -65,13 +66,19 @@ pub fn variance_with(kernel: Kernel, img: &Image, kind: Kind, keep: f64) -> Vec<
     let c = img.channels();
     // The channels, then 1 where a pixel takes part (inside the image and known), else 0.
     let data = img.data();
-    let planes = Padded::new((w, h), c + 1, trim::RADIUS as usize, |i, k| {
-        if k < c {
-            data[i * c + k] as f64
-        } else {
-            f64::from(u8::from(known(img, kind, i)))
-        }
-    });
+    let planes = Padded::new(
+        (w, h),
+        c + 1,
+        trim::RADIUS as usize,
+        Margin::Zeros,
+        |i, k| {
+            if k < c {
+                data[i * c + k] as f64
+            } else {
+                f64::from(u8::from(known(img, kind, i)))
+            }
+        },
+    );
     let unit = 2.0 * trimmed_chi2_mean(keep);
     let mut out = vec![0.0f32; w * h];
     out.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, out)| {
@@ -116,14 +123,18 @@ fn pixel_variance<const L: usize, const T: usize>(
         planes.planes.len() - 1,
         &planes.planes[planes.planes.len() - 1],
     );
+    // Both cells' indices of every pair, for the mask and every channel.
+    let mut cells = [(0usize, 0usize); MAX_PAIRS];
+    for (cell, &[a, b]) in cells.iter_mut().zip(&PAIRS) {
+        *cell = (planes.at(x, y, a), planes.at(x, y, b));
+    }
     let mut valid = [[false; L]; MAX_PAIRS];
     let mut n = [0usize; L];
-    for (p, &[a, b]) in PAIRS.iter().enumerate() {
-        let (ia, ib) = (planes.at(x, y, a), planes.at(x, y, b));
+    for (ok_p, &(ia, ib)) in valid.iter_mut().zip(&cells) {
         let (oa, ob) = (&ok[ia..ia + L], &ok[ib..ib + L]);
         for l in 0..L {
-            valid[p][l] = (oa[l] != 0.0) & (ob[l] != 0.0);
-            n[l] += usize::from(valid[p][l]);
+            ok_p[l] = (oa[l] != 0.0) & (ob[l] != 0.0);
+            n[l] += usize::from(ok_p[l]);
         }
     }
     let mut drop = [0usize; L];
@@ -133,12 +144,11 @@ fn pixel_variance<const L: usize, const T: usize>(
     let mut total = [0.0f64; L];
     let mut d2 = [[0.0f64; L]; MAX_PAIRS];
     for plane in &planes.planes[..c] {
-        for (p, &[a, b]) in PAIRS.iter().enumerate() {
-            let (ia, ib) = (planes.at(x, y, a), planes.at(x, y, b));
+        for (d2_p, &(ia, ib)) in d2.iter_mut().zip(&cells) {
             let (pa, pb) = (&plane[ia..ia + L], &plane[ib..ib + L]);
             for l in 0..L {
                 let d = pa[l] - pb[l];
-                d2[p][l] = d * d;
+                d2_p[l] = d * d;
             }
         }
         let mean = trim::lanes::<L, MAX_PAIRS, T>(&d2, &valid, drop);
@@ -179,9 +189,6 @@ pub fn filter_with(kernel: Kernel, img: &Image, variance: &[f32], kind: Kind, p:
     let c = img.channels();
     let data = img.data();
     let (r, f) = (p.radius as isize, p.patch as isize);
-    // A patch cell beyond the image reads the nearest edge pixel: planes with a margin that
-    // repeats it make every offset's terms one contiguous run of both patches' cells.
-    let edge = Edge::new(w, h, (r + f) as usize);
     let nl = NlMeans {
         kernel: kernel.or_portable(),
         kind,
@@ -192,15 +199,20 @@ pub fn filter_with(kernel: Kernel, img: &Image, variance: &[f32], kind: Kind, p:
         r,
         f,
         k2: p.strength * p.strength,
-        chans: (0..c)
-            .map(|k| edge.plane(|i| data[i * c + k] as f64))
-            .collect(),
-        var: edge.plane(|i| variance[i] as f64),
-        eps: edge.plane(|i| match kind {
-            Kind::Depth => (EPS * (data[i] as f64).powi(2)).max(f64::MIN_POSITIVE),
-            Kind::Plain | Kind::Normal => EPS,
+        // A patch cell beyond the image reads the nearest edge pixel: with a margin that repeats
+        // it, every offset's terms are one contiguous run of both patches' cells.
+        planes: Padded::new((w, h), c + 2, (r + f) as usize, Margin::Edge, |i, k| {
+            if k < c {
+                data[i * c + k] as f64
+            } else if k == c {
+                variance[i] as f64
+            } else {
+                match kind {
+                    Kind::Depth => (EPS * (data[i] as f64).powi(2)).max(f64::MIN_POSITIVE),
+                    Kind::Plain | Kind::Normal => EPS,
+                }
+            }
         }),
-        edge,
     };
     let mut out = img.par_clone();
     out.data_mut()
@@ -227,11 +239,8 @@ struct NlMeans<'a> {
     f: isize,
     /// k².
     k2: f64,
-    /// Edge-padded planes: the channels, the variance and ε.
-    chans: Vec<Vec<f64>>,
-    var: Vec<f64>,
-    eps: Vec<f64>,
-    edge: Edge,
+    /// Edge-padded planes: the channels, then the variance, then ε.
+    planes: Padded,
 }
 
 impl NlMeans<'_> {
@@ -247,7 +256,8 @@ impl NlMeans<'_> {
 fn filter_band(nl: &NlMeans, band: usize, rows: &mut [f32]) {
     let ((w, h, c), (r, f), k2) = (nl.dims, (nl.r, nl.f), nl.k2);
     let (data, known, kind, kernel) = (nl.data, &nl.known, nl.kind, nl.kernel);
-    let (chans, var, eps, edge) = (&nl.chans, &nl.var, &nl.eps, &nl.edge);
+    let edge = &nl.planes;
+    let (chans, var, eps) = (&edge.planes[..c], &edge.planes[c], &edge.planes[c + 1]);
     let active = |i: usize| nl.active(i);
     let terms = ((2 * f + 1) * (2 * f + 1)) as f64 * c as f64;
     let y0 = band * BAND;
@@ -352,47 +362,6 @@ fn filter_band(nl: &NlMeans, band: usize, rows: &mut [f32]) {
         for (o, x) in px.iter_mut().zip(v) {
             *o = x as f32;
         }
-    }
-}
-
-/// Planes of a `w`×`h` image with a margin of `margin` cells on every side that repeat the
-/// nearest edge pixel.
-struct Edge {
-    w: usize,
-    h: usize,
-    margin: usize,
-}
-
-impl Edge {
-    fn new(w: usize, h: usize, margin: usize) -> Self {
-        Edge { w, h, margin }
-    }
-
-    fn stride(&self) -> usize {
-        self.w + 2 * self.margin
-    }
-
-    /// The plane of `value(pixel index)`.
-    fn plane(&self, value: impl Fn(usize) -> f64 + Sync) -> Vec<f64> {
-        let (w, h, m) = (self.w as isize, self.h as isize, self.margin as isize);
-        let mut plane = vec![0.0; self.stride() * (self.h + 2 * self.margin)];
-        plane
-            .par_chunks_mut(self.stride())
-            .enumerate()
-            .for_each(|(row, cells)| {
-                let y = (row as isize - m).clamp(0, h - 1);
-                for (col, v) in cells.iter_mut().enumerate() {
-                    let x = (col as isize - m).clamp(0, w - 1);
-                    *v = value((y * w + x) as usize);
-                }
-            });
-        plane
-    }
-
-    /// Index of pixel (x, y), −margin ≤ x < w + margin (and y likewise), in a plane.
-    fn index(&self, x: isize, y: isize) -> usize {
-        let m = self.margin as isize;
-        ((y + m) * self.stride() as isize + x + m) as usize
     }
 }
 

@@ -7,8 +7,6 @@
 //! runs in one 256-bit register per step, with no selection's unpredictable branches. A lane's
 //! result is the same bits on every CPU, lane grouping and thread count.
 
-use rayon::prelude::*;
-
 /// Pixels of a row whose windows run side by side: one 256-bit register of f64.
 pub(crate) const LANES: usize = 4;
 
@@ -61,56 +59,6 @@ pub(crate) const PAIRS: [[(isize, isize); 2]; MAX_PAIRS] = {
     }
     pairs
 };
-
-/// Per-pixel planes with a margin of zeros on every side, so the pixels of a row read their
-/// windows side by side, without bounds checks.
-pub(crate) struct Padded {
-    pub(crate) planes: Vec<Vec<f64>>,
-    stride: usize,
-    margin: usize,
-}
-
-impl Padded {
-    /// `planes` planes of a `w`×`h` image with a margin of `margin` cells, plane k of pixel i
-    /// holding `value(i, k)`.
-    pub(crate) fn new(
-        (w, h): (usize, usize),
-        planes: usize,
-        margin: usize,
-        value: impl Fn(usize, usize) -> f64 + Sync,
-    ) -> Self {
-        let m = margin;
-        let stride = w + 2 * m;
-        let planes = (0..planes)
-            .map(|k| {
-                let mut plane = vec![0.0; stride * (h + 2 * m)];
-                plane
-                    .par_chunks_mut(stride)
-                    .skip(m)
-                    .take(h)
-                    .enumerate()
-                    .for_each(|(y, row)| {
-                        for (x, v) in row[m..m + w].iter_mut().enumerate() {
-                            *v = value(y * w + x, k);
-                        }
-                    });
-                plane
-            })
-            .collect();
-        Padded {
-            planes,
-            stride,
-            margin,
-        }
-    }
-
-    /// Index in a plane of the cell (dx, dy) from pixel (x, y), |dx|, |dy| ≤ the margin.
-    #[inline(always)]
-    pub(crate) fn at(&self, x: usize, y: usize, (dx, dy): (isize, isize)) -> usize {
-        let m = self.margin as isize;
-        ((y as isize + m + dy) * self.stride as isize + x as isize + m + dx) as usize
-    }
-}
 
 /// Per lane l, the mean of the valid `values[..][l]` without the `dropped[l]` largest, or 0 when
 /// none is kept. Values must be ≥ 0; one that is not finite counts as not valid. `dropped[l]` is
@@ -190,10 +138,11 @@ pub(crate) fn lanes<const L: usize, const N: usize, const T: usize>(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn xorshift(seed: u64) -> impl FnMut() -> u64 {
+    /// A xorshift64 stream: the unit tests' random numbers, fixed by `seed`.
+    pub(crate) fn xorshift(seed: u64) -> impl FnMut() -> u64 {
         let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
         move || {
             s ^= s << 13;
