@@ -6,9 +6,10 @@ The presets take GSID's σ and the à-trous σ from the measured noise (docs/ALG
   * `auto`: the pipeline (`--pipeline`, default `full`) as shipped;
   * `fixed`: the same pipeline with **fixed** σ, for every pair on the grid GSID sigma ∈ {0.1, 0.3, 1, 2}
     × à-trous sigma ∈ {0.1, 0.2, 0.4} (`--gsid-sigmas`, `--atrous-sigmas`). Fixed means
-    `--set pyramid.gsid.sigma=S --set pyramid.gsid.noise_power=0 --set atrous.sigma=A
-    --set atrous.noise_power=0`: with power 0 the noise factor is 1 at any level, so σ = sigma at every
-    pyramid level and in every à-trous pass (`cargo test --release --test noise noise_power_zero`
+    `--set pyramid.gsid.sigma=S --set pyramid.gsid.noise_power=0 --set pyramid.gsid.local_noise=0
+    --set atrous.sigma=A --set atrous.noise_power=0`: with power 0 the noise factor is 1 at any level,
+    and with local_noise 0 every pixel's colour difference counts alike, so σ = sigma at every
+    pyramid level, pixel and à-trous pass (`cargo test --release --test noise noise_power_zero`
     checks that this gives the same bits as the stages without a `noise` buffer; a preset's own
     `levelN = { gsid = { ... } }` override would win over `pyramid.gsid.*` at that level, and the
     shipped presets have none). Everything else
@@ -108,6 +109,7 @@ def variants(args):
     for g, a in product(parse_floats(args.gsid_sigmas, "--gsid-sigmas"),
                         parse_floats(args.atrous_sigmas, "--atrous-sigmas")):
         out.append((f"fixed {g:g}/{a:g}", [f"{args.gsid_key}.sigma={g}", f"{args.gsid_key}.noise_power=0",
+                                            f"{args.gsid_key}.local_noise=0",
                                             f"{args.atrous_key}.sigma={a}", f"{args.atrous_key}.noise_power=0"]))
     return out
 

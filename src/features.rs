@@ -204,6 +204,22 @@ impl Features {
         exposure: f32,
         rows: std::ops::Range<usize>,
     ) -> Result<(Features, Vec<&'static str>)> {
+        Features::build_rows_scaled(color, features, weights, tone, exposure, None, rows)
+    }
+
+    /// [`Features::build_rows`] with the tone-mapped colour of every pixel multiplied by its
+    /// `color_scale` (one factor per image pixel): colour differences in units of the local noise
+    /// (`crate::noise::color_scales`).
+    #[allow(clippy::too_many_arguments)]
+    pub fn build_rows_scaled(
+        color: &Image,
+        features: &FeatureSet,
+        weights: &Weights,
+        tone: Tone,
+        exposure: f32,
+        color_scale: Option<&[f32]>,
+        rows: std::ops::Range<usize>,
+    ) -> Result<(Features, Vec<&'static str>)> {
         let w = color.width();
         let h = rows.len();
         let base = rows.start * w;
@@ -260,8 +276,9 @@ impl Features {
                 let first = base + chunk * CHUNK;
                 for (i, r) in records.iter_mut().enumerate() {
                     let c = color.pixel(first + i);
+                    let scale = color_scale.map_or(1.0, |s| s[first + i]);
                     for k in 0..3 {
-                        r[k] = wt.color * tone.apply(exposure * c[k]);
+                        r[k] = wt.color * scale * tone.apply(exposure * c[k]);
                     }
                     for (img, lane, scales) in &packs {
                         for (k, (&v, &scale)) in img.pixel(first + i).iter().zip(scales).enumerate()

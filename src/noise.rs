@@ -275,8 +275,9 @@ fn raw_row(flat: &Padded, mates: &Mates, y: usize, out: &mut [([f64; 3], usize)]
     );
 }
 
-/// Most pairs a raw estimate trims: `TRIM` of them all.
-const MOST_TRIMMED: usize = (MAX_PAIRS as f64 * TRIM) as usize;
+/// The adjacent pairs of one direction in the raw window, and the most of them trimmed.
+const DIRECTION_PAIRS: usize = MAX_PAIRS / 2;
+const DIRECTION_TRIMMED: usize = (DIRECTION_PAIRS as f64 * TRIM) as usize;
 /// The share of the largest squared differences left out: pairs across an edge the features do
 /// not show (a light's rim, a shadow's) and fireflies, which are not the noise a filter should
 /// follow.
@@ -286,6 +287,12 @@ const TRIM: f64 = 0.2;
 /// noise laws were measured on this one: the finite-n value (4 % lower variance at 40 pairs) cost
 /// `cycles-studio` 0.006 SSIM at 1 spp (README "Noise-aware strengths").
 const TRIMMED_CHI2_MEAN: f64 = 0.437_724_594_903_639;
+/// How much more one direction's pairs must read than the other's for only the lower to count.
+/// On white noise the two trimmed means of a full window differ by more than 3× at 2.5 % of the
+/// pixels, which then read 1 % low on average; across a light's rim they differ by 10× and more.
+const DIRECTIONAL_RATIO: f64 = 3.0;
+/// Fewest pairs kept in each direction for that test.
+const MIN_DIRECTION_PAIRS: f64 = 6.0;
 /// Most values the blend's trimmed mean takes (its 5×5 window).
 const MAX_TRIMMED: usize = BLEND_TAPS;
 
@@ -375,9 +382,13 @@ fn simpson_nodes() -> &'static [SimpsonNode] {
     })
 }
 
-/// Raw estimates at pixels (x..x + L, y): per lane, a trimmed mean of the squared differences of
+/// Raw estimates at pixels (x..x + L, y): per lane, trimmed means of the squared differences of
 /// adjacent surface-mates in its window (brought to albedo 1), which a smooth change of light
-/// barely enters; with its number of pairs kept (0: too few mates in `window`, its cells' bits).
+/// barely enters, over its horizontal and over its vertical pairs; with its number of pairs kept
+/// (0: too few mates in `window`, its cells' bits). Where one direction reads more than
+/// [`DIRECTIONAL_RATIO`] times the other, only the lower counts: an edge the features do not show
+/// (a light's rim, a shadow's) raises the pairs across it, not those along it. Elsewhere both
+/// count, each by its pairs kept.
 #[inline(always)]
 fn pair_spread<const L: usize>(
     flat: &Padded,
@@ -391,38 +402,62 @@ fn pair_spread<const L: usize>(
     bits.copy_from_slice(&mates.bits[y * w + x..y * w + x + L]);
     let (side, c) = (mates.side as isize, (mates.side / 2) as isize);
     let bit = |(dx, dy): (isize, isize)| ((dy + c) * side + dx + c) as u32;
-    let mut valid = [[false; L]; MAX_PAIRS];
-    let mut d2 = [[[0.0f64; L]; MAX_PAIRS]; 3];
-    let mut n = [0usize; L];
-    for (p, &[a, b]) in PAIRS.iter().enumerate() {
+    // Per direction (0 horizontal, 1 vertical), its pairs in `PAIRS` order.
+    let mut valid = [[[false; L]; DIRECTION_PAIRS]; 2];
+    let mut d2 = [[[[0.0f64; L]; DIRECTION_PAIRS]; 2]; 3];
+    let mut n = [[0usize; L]; 2];
+    let mut next = [0usize; 2];
+    for &[a, b] in PAIRS.iter() {
+        let dir = usize::from(a.1 != b.1);
+        let p = next[dir];
+        next[dir] += 1;
         for l in 0..L {
-            valid[p][l] = bits[l] >> bit(a) & bits[l] >> bit(b) & 1 == 1;
-            n[l] += usize::from(valid[p][l]);
+            valid[dir][p][l] = bits[l] >> bit(a) & bits[l] >> bit(b) & 1 == 1;
+            n[dir][l] += usize::from(valid[dir][p][l]);
         }
         let (ia, ib) = (flat.at(x, y, a), flat.at(x, y, b));
         for (k, plane) in flat.planes.iter().enumerate() {
             let (pa, pb) = (&plane[ia..ia + L], &plane[ib..ib + L]);
             for l in 0..L {
                 let d = pa[l] - pb[l];
-                d2[k][p][l] = d * d;
+                d2[k][dir][p][l] = d * d;
             }
         }
     }
-    let mut dropped = [0usize; L];
-    for l in 0..L {
-        dropped[l] = (n[l] as f64 * TRIM) as usize;
-    }
-    let mut means = [[0.0f64; L]; 3];
-    for k in 0..3 {
-        means[k] = trim::lanes::<L, MAX_PAIRS, MOST_TRIMMED>(&d2[k], &valid, dropped);
+    let mut dropped = [[0usize; L]; 2];
+    let mut kept = [[0.0f64; L]; 2];
+    for dir in 0..2 {
+        for l in 0..L {
+            dropped[dir][l] = (n[dir][l] as f64 * TRIM) as usize;
+            kept[dir][l] = (n[dir][l] - dropped[dir][l]) as f64;
+        }
     }
     let mut out = [([0.0; 3], 0); L];
-    for (l, (var, kept)) in out.iter_mut().enumerate() {
-        if (bits[l] & window).count_ones() as usize >= MIN_MATES && n[l] >= 2 {
-            for (v, mean) in var.iter_mut().zip(&means) {
-                *v = mean[l] / (2.0 * TRIMMED_CHI2_MEAN);
-            }
-            *kept = n[l] - dropped[l];
+    for (k, d2) in d2.iter().enumerate() {
+        let [h, v] = [0, 1].map(|dir| {
+            trim::lanes::<L, DIRECTION_PAIRS, DIRECTION_TRIMMED>(
+                &d2[dir],
+                &valid[dir],
+                dropped[dir],
+            )
+        });
+        for l in 0..L {
+            let (lo, hi) = (h[l].min(v[l]), h[l].max(v[l]));
+            let both = kept[0][l] >= MIN_DIRECTION_PAIRS && kept[1][l] >= MIN_DIRECTION_PAIRS;
+            let mean = if both && hi > DIRECTIONAL_RATIO * lo {
+                lo
+            } else {
+                (h[l] * kept[0][l] + v[l] * kept[1][l]) / (kept[0][l] + kept[1][l]).max(1.0)
+            };
+            out[l].0[k] = mean / (2.0 * TRIMMED_CHI2_MEAN);
+        }
+    }
+    for (l, (var, pairs)) in out.iter_mut().enumerate() {
+        let total = n[0][l] + n[1][l];
+        if (bits[l] & window).count_ones() as usize >= MIN_MATES && total >= 2 {
+            *pairs = kept[0][l] as usize + kept[1][l] as usize;
+        } else {
+            *var = [0.0; 3];
         }
     }
     out
@@ -556,6 +591,73 @@ fn smooth(color: &Image, surface: &Surface, mates: &Mates, raw: &[([f64; 3], usi
             }
         });
     out
+}
+
+/// Most a pixel's colour scale departs from 1 (either way).
+const MAX_SCALE: f64 = 4.0;
+
+/// Per pixel, the factor that brings colour differences to units of the pixel's own noise:
+/// (typical level / local level)^γ within [1/4, 4], the local level being the noise standard
+/// deviation through the tone curve's derivative at the 3×3 mean colour (a firefly's own value
+/// would make its noise look tiny), and the typical level their median, so the image's σ keeps
+/// its meaning. γ = `power` · min(1, typical / `reference`): the less noise there is, the more of
+/// an estimate's variation from pixel to pixel is structure it read as noise (an edge, a
+/// texture), so the less it is followed.
+pub fn color_scales(
+    color: &Image,
+    variance: &Image,
+    exposure: f32,
+    power: f64,
+    reference: f64,
+) -> Vec<f32> {
+    let (w, h) = color.dims();
+    let brightness = crate::condition::robust_brightness(color);
+    if brightness.is_nan() || brightness <= 0.0 || w * h == 0 {
+        return vec![1.0; w * h];
+    }
+    let e = exposure as f64 * crate::condition::UNIT_BRIGHTNESS / brightness;
+    let c = color.data();
+    let v = variance.data();
+    let mean = |x: usize, y: usize| {
+        c[3 * (y * w + x)..3 * (y * w + x) + 3]
+            .iter()
+            .map(|&x| x.max(0.0) as f64)
+            .sum::<f64>()
+            / 3.0
+    };
+    let levels: Vec<f64> = (0..w * h)
+        .into_par_iter()
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            let (mut sum, mut n) = (0.0, 0.0);
+            for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                    let m = mean(xx, yy);
+                    if m.is_finite() {
+                        sum += m;
+                        n += 1.0;
+                    }
+                }
+            }
+            let m = if n > 0.0 { sum / n } else { 0.0 };
+            let var = v[3 * i..3 * i + 3].iter().map(|&x| clean(x)).sum::<f64>() / 3.0;
+            var.sqrt() * e / (1.0 + e * m).powi(2)
+        })
+        .collect();
+    let mut sorted = levels.clone();
+    let mid = sorted.len() / 2;
+    let (_, &mut typical, _) = sorted.select_nth_unstable_by(mid, f64::total_cmp);
+    if typical.is_nan() || typical <= 0.0 {
+        return vec![1.0; w * h];
+    }
+    let power = power * (typical / reference).min(1.0);
+    levels
+        .iter()
+        .map(|&l| {
+            let ratio = if l > 0.0 { typical / l } else { f64::INFINITY };
+            ratio.powf(power).clamp(1.0 / MAX_SCALE, MAX_SCALE) as f32
+        })
+        .collect()
 }
 
 /// The image's typical noise as the colour feature sees it: the median over pixels of the noise
@@ -882,6 +984,87 @@ mod tests {
         let v = estimate(&img, &FeatureSet::default());
         let mean = v.data().iter().map(|&x| x as f64).sum::<f64>() / v.data().len() as f64;
         assert!((mean.sqrt() - 0.1).abs() < 0.01, "std {}", mean.sqrt());
+    }
+
+    /// A bright line one pixel wide that no feature shows (a light's rim seen edge-on): its two
+    /// boundaries put half of the vertical pairs of every window near it across an edge, more than
+    /// the trim takes out, so a trimmed mean of all pairs reads the step as noise. The horizontal
+    /// pairs run along it and read the noise.
+    #[test]
+    fn a_line_the_features_miss_is_not_noise() {
+        let (w, h, std) = (32, 32, 0.1);
+        let noise = noisy_flat(w, h, 0.0, std, 6);
+        let img = Image::from_fn(w, h, 3, |x, y, k| {
+            let line = if y == 16 { 3.0 } else { 1.0 };
+            line + noise.at(x, y)[k]
+        });
+        let v = estimate(&img, &FeatureSet::default());
+        for y in 13..=19 {
+            for x in 4..w - 4 {
+                let sd = (v.at(x, y)[0] as f64).sqrt();
+                assert!(
+                    sd < 1.5 * std as f64,
+                    "({x}, {y}): σ {sd:.3} read for noise of σ {std}"
+                );
+            }
+        }
+        // A flat field still reads its noise in full.
+        let flat = estimate(&noisy_flat(w, h, 1.0, std, 6), &FeatureSet::default());
+        let mean = flat.data().iter().map(|&x| x as f64).sum::<f64>() / flat.data().len() as f64;
+        assert!(
+            (mean.sqrt() - std as f64).abs() < 0.01,
+            "std {}",
+            mean.sqrt()
+        );
+    }
+
+    /// The colour scales: 1 at the typical level, below 1 where a pixel is noisier, above where
+    /// cleaner, within [1/4, 4]; followed less when the image's level is below the reference;
+    /// all 1 with power 0, without noise, or on a black image.
+    #[test]
+    fn color_scales_follow_each_pixels_noise() {
+        let (w, h) = (16, 16);
+        let color = Image::filled(w, h, 3, 0.1);
+        let variance = Image::from_fn(w, h, 3, |x, _, _| match x {
+            0..=3 => 4e-4,
+            4..=11 => 1e-4,
+            _ => 1e-6,
+        });
+        let scales = color_scales(&color, &variance, 1.0, 1.0, 1e-6);
+        let at = |x: usize| scales[3 * w + x];
+        assert!((at(8) - 1.0).abs() < 1e-6, "typical pixel {}", at(8));
+        assert!((at(1) - 0.5).abs() < 1e-4, "4× the variance: {}", at(1));
+        assert_eq!(at(14), 4.0, "clamped at 4");
+        // Power 2 at a reference twice the level: γ = 1 again.
+        let faded = color_scales(
+            &color,
+            &variance,
+            1.0,
+            2.0,
+            2.0 * tone_level(&color, &variance, 1.0),
+        );
+        assert!(
+            (faded[3 * w + 1] - 0.5).abs() < 1e-3,
+            "faded {}",
+            faded[3 * w + 1]
+        );
+        assert!(color_scales(&color, &variance, 1.0, 0.0, 1.0)
+            .iter()
+            .all(|&s| s == 1.0));
+        let black = Image::new(w, h, 3);
+        assert!(color_scales(&black, &variance, 1.0, 1.0, 1.0)
+            .iter()
+            .all(|&s| s == 1.0));
+        for bad in [f32::NAN, f32::INFINITY, -1.0, 0.0] {
+            let v = Image::filled(w, h, 3, bad);
+            assert!(color_scales(&color, &v, 1.0, 1.0, 1.0)
+                .iter()
+                .all(|&s| s == 1.0));
+        }
+        let mut partly = variance.clone();
+        partly.pixel_mut(0).fill(f32::NAN);
+        let s = color_scales(&color, &partly, 1.0, 1.0, 1.0);
+        assert!(s.iter().all(|s| (0.25..=4.0).contains(s)));
     }
 
     #[test]

@@ -333,6 +333,7 @@ fn ablate_prints_and_writes_the_table() {
         "without atrous",
         "without blend",
         "fixed σ (no noise measured)",
+        "one σ per image (no per-pixel noise)",
         "noise from the image only",
         "without walks (à-trous alone)",
         "weight albedo = 0",
@@ -343,8 +344,8 @@ fn ablate_prints_and_writes_the_table() {
     }
     let text = std::fs::read_to_string(&csv).unwrap();
     // Header, then: full, five stages removed (the noise stage is not: later stages read it), the
-    // three noise rows, eight weights zeroed, plain SID.
-    assert_eq!(text.lines().count(), 1 + 18, "{text}");
+    // four noise rows, eight weights zeroed, plain SID.
+    assert_eq!(text.lines().count(), 1 + 19, "{text}");
     assert!(text.starts_with("variant,ssim,psnr,relmse,seconds,delta_ssim"));
     let bad = gsid(&[
         "ablate",

@@ -179,9 +179,9 @@ fn stage<'a>(stages: &'a mut [gsid::spec::StageSpec], id: &str) -> &'a mut gsid:
         .unwrap_or_else(|| panic!("no stage `{id}`"))
 }
 
-/// What `scripts/oracle_sigma.py` calls fixed σ: `noise_power = 0` on GSID and the à-trous passes
-/// gives the same bits as the same stages without a `noise` buffer, i.e. σ = `sigma` at every
-/// pyramid level, and `full` without it does follow the noise.
+/// What `scripts/oracle_sigma.py` calls fixed σ: `noise_power = 0` on GSID and the à-trous passes,
+/// and GSID's `local_noise = 0`, give the same bits as the same stages without a `noise` buffer,
+/// i.e. σ = `sigma` at every pyramid level and pixel, and `full` without them does follow the noise.
 #[test]
 fn noise_power_zero_is_a_fixed_sigma() {
     let run = |spec: &PipelineSpec, buffers: &Buffers| {
@@ -199,6 +199,7 @@ fn noise_power_zero_is_a_fixed_sigma() {
             .unwrap();
         let mut fixed = auto.clone();
         fixed.apply_set("pyramid.gsid.noise_power=0").unwrap();
+        fixed.apply_set("pyramid.gsid.local_noise=0").unwrap();
         fixed.apply_set("atrous.noise_power=0").unwrap();
         let mut unlinked = auto.clone();
         let atrous = stage(&mut unlinked.stages, "atrous");

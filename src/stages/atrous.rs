@@ -37,6 +37,8 @@ pub struct AtrousParams {
     pub noise_ref: f32,
     /// σ = sigma · (level / noise_ref)^noise_power.
     pub noise_power: f32,
+    /// How far each pixel's colour difference follows its own noise (as `gsid`'s; 0: one σ).
+    pub local_noise: f32,
 }
 
 impl Default for AtrousParams {
@@ -52,6 +54,7 @@ impl Default for AtrousParams {
             noise: None,
             noise_ref: 0.028,
             noise_power: 1.0,
+            local_noise: 0.0,
         }
     }
 }
@@ -94,6 +97,7 @@ impl AtrousParams {
             noise: self.noise.clone(),
             noise_ref: self.noise_ref,
             noise_power: self.noise_power,
+            local_noise: self.local_noise,
         }
     }
 }
@@ -144,6 +148,9 @@ impl Stage for AtrousStage {
         let sigma = p
             .scaling()
             .sigma(p.sigma, buffers, &color, p.exposure, ctx, &self.id)?;
+        // From the colour as it comes in: a pixel's noise relative to the image's does not depend
+        // on the demodulation below.
+        let scales = p.scaling().color_scales(buffers, &color, p.exposure)?;
         let albedo = if p.demodulate {
             match buffers.features().get(Feature::Albedo) {
                 Some(a) if a.dims() == color.dims() => Some(a),
@@ -186,12 +193,13 @@ impl Stage for AtrousStage {
             // The colour feature is read from each pass's input, which gets cleaner every pass.
             let current = &color;
             let bands = |rows| {
-                Features::build_rows(
+                Features::build_rows_scaled(
                     current,
                     buffers.features(),
                     &p.weights,
                     p.tone,
                     p.exposure,
+                    scales.as_deref(),
                     rows,
                 )
                 .expect("buffer sizes were checked above")

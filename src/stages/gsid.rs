@@ -39,6 +39,9 @@ pub struct GsidParams {
     pub noise_ref: f32,
     /// σ = sigma · (level / noise_ref)^noise_power.
     pub noise_power: f32,
+    /// How far each pixel's colour difference follows its own noise, besides σ following the
+    /// image's (`crate::noise::color_scales`; 0: one σ for the whole image).
+    pub local_noise: f32,
 }
 
 impl Default for GsidParams {
@@ -59,6 +62,7 @@ impl Default for GsidParams {
             noise: None,
             noise_ref: 0.04,
             noise_power: 1.0,
+            local_noise: 0.0,
         }
     }
 }
@@ -121,6 +125,7 @@ impl GsidParams {
             noise: self.noise.clone(),
             noise_ref: self.noise_ref,
             noise_power: self.noise_power,
+            local_noise: self.local_noise,
         }
     }
 
@@ -189,13 +194,17 @@ pub fn run_gsid(
         ));
     }
     let mask = read_mask(buffers, params.mask.as_deref(), color.dims(), ctx, label)?;
+    let scales = params
+        .scaling()
+        .color_scales(buffers, color, params.exposure)?;
     let features_for = |rows: std::ops::Range<usize>| {
-        Features::build_rows(
+        Features::build_rows_scaled(
             color,
             buffers.features(),
             &params.weights,
             params.tone,
             params.exposure,
+            scales.as_deref(),
             rows,
         )
         .map(|(f, _)| f)

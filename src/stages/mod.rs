@@ -198,6 +198,9 @@ pub struct NoiseScaling {
     pub noise_ref: f32,
     /// How fast σ follows the level (2: with the variance).
     pub noise_power: f32,
+    /// How far each pixel's colour difference follows its own noise (`crate::noise::color_scales`;
+    /// 0: one σ for the whole image).
+    pub local_noise: f32,
 }
 
 impl NoiseScaling {
@@ -208,7 +211,41 @@ impl NoiseScaling {
         if !(0.0..=4.0).contains(&self.noise_power) {
             return Err(Error::range("noise_power", self.noise_power, "0 to 4"));
         }
+        if !(0.0..=4.0).contains(&self.local_noise) {
+            return Err(Error::range("local_noise", self.local_noise, "0 to 4"));
+        }
         Ok(())
+    }
+
+    /// Per-pixel factors of the colour feature of `color` (`crate::noise::color_scales`), or none
+    /// when `local_noise` is 0 or no `noise` buffer is named.
+    pub fn color_scales(
+        &self,
+        buffers: &Buffers,
+        color: &Image,
+        exposure: f32,
+    ) -> Result<Option<Vec<f32>>> {
+        let Some(name) = self.noise.as_deref().filter(|_| self.local_noise > 0.0) else {
+            return Ok(None);
+        };
+        let variance = self.variance(buffers, name, color)?;
+        Ok(Some(crate::noise::color_scales(
+            color,
+            variance,
+            exposure,
+            self.local_noise as f64,
+            self.noise_ref as f64,
+        )))
+    }
+
+    /// The variance buffer `name`, which the stage requires.
+    fn variance<'a>(&self, buffers: &'a Buffers, name: &str, color: &Image) -> Result<&'a Image> {
+        buffers.get_sized(name, 3, color.dims())?.ok_or_else(|| {
+            Error::buffer(
+                name,
+                "is required (the stage's `noise`) but missing; a `noise` stage writes it",
+            )
+        })
     }
 
     /// The σ to filter `color` with: `sigma` scaled by its noise level, kept inside the range
@@ -225,12 +262,7 @@ impl NoiseScaling {
         let Some(name) = self.noise.as_deref() else {
             return Ok(sigma);
         };
-        let variance = buffers.get_sized(name, 3, color.dims())?.ok_or_else(|| {
-            Error::buffer(
-                name,
-                "is required (the stage's `noise`) but missing; a `noise` stage writes it",
-            )
-        })?;
+        let variance = self.variance(buffers, name, color)?;
         let level = crate::noise::tone_level(color, variance, exposure);
         // Above the reference level σ grows no further than MAX_GAIN×: at very high noise the
         // estimate also holds fine geometry taken for noise, and a larger σ would average it away.

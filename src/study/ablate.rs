@@ -98,8 +98,10 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
 
 /// The rows that show what measuring the noise buys, for a pipeline with `noise` stages: every
 /// noise stage, noise key and blend taken out ("fixed σ", the behaviour before the stages followed
-/// the noise); the noise always estimated from the image (a `variance` buffer, if any, ignored);
-/// and the walks taken out (the pyramid removed, à-trous on the colour, σ still from the noise).
+/// the noise); one σ per image (every `local_noise` set to 0, where a stage follows each pixel's
+/// own noise too); the noise always estimated from the image (a `variance` buffer, if any,
+/// ignored); and the walks taken out (the pyramid removed, à-trous on the colour, σ still from
+/// the noise).
 fn noise_variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
     let is_noise = |s: &StageSpec| s.kind == "noise";
     if !spec
@@ -128,16 +130,34 @@ fn noise_variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
             c.params.insert("source".into(), image.clone());
         }
     }
-    let mut out = vec![
-        Variant {
-            name: "fixed σ (no noise measured)".into(),
-            spec: fixed,
-        },
-        Variant {
-            name: "noise from the image only".into(),
-            spec: from_image,
-        },
-    ];
+    let mut per_image = spec.clone();
+    let mut local = false;
+    for s in &mut per_image.stages {
+        for p in std::iter::once(&mut s.params).chain(s.children.iter_mut().map(|c| &mut c.params))
+        {
+            if p.get("local_noise")
+                .and_then(toml::Value::as_float)
+                .is_some_and(|g| g > 0.0)
+            {
+                p.insert("local_noise".into(), toml::Value::Float(0.0));
+                local = true;
+            }
+        }
+    }
+    let mut out = vec![Variant {
+        name: "fixed σ (no noise measured)".into(),
+        spec: fixed,
+    }];
+    if local {
+        out.push(Variant {
+            name: "one σ per image (no per-pixel noise)".into(),
+            spec: per_image,
+        });
+    }
+    out.push(Variant {
+        name: "noise from the image only".into(),
+        spec: from_image,
+    });
     if let Some(p) = spec.stages.iter().position(|s| s.kind == "pyramid") {
         let mut v = spec.clone();
         v.stages.remove(p);
