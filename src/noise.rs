@@ -434,13 +434,10 @@ fn pair_spread<const L: usize>(
     }
     let mut out = [([0.0; 3], 0); L];
     for (k, d2) in d2.iter().enumerate() {
-        let [h, v] = [0, 1].map(|dir| {
-            trim::lanes::<L, DIRECTION_PAIRS, DIRECTION_TRIMMED>(
-                &d2[dir],
-                &valid[dir],
-                dropped[dir],
-            )
-        });
+        // Two calls, not a closure over the directions: a closure is not inlined into the AVX2
+        // copy of the row function.
+        let h = trim::lanes::<L, DIRECTION_PAIRS, DIRECTION_TRIMMED>(&d2[0], &valid[0], dropped[0]);
+        let v = trim::lanes::<L, DIRECTION_PAIRS, DIRECTION_TRIMMED>(&d2[1], &valid[1], dropped[1]);
         for l in 0..L {
             let (lo, hi) = (h[l].min(v[l]), h[l].max(v[l]));
             let both = kept[0][l] >= MIN_DIRECTION_PAIRS && kept[1][l] >= MIN_DIRECTION_PAIRS;
