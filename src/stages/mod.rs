@@ -286,3 +286,30 @@ pub fn parse_params<T: serde::de::DeserializeOwned>(id: &str, params: toml::Tabl
         Error::config(id.to_string(), msg)
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::pipeline::PipelineSpec;
+
+    /// `local_noise` is checked like the other noise keys, in both stages that take it.
+    #[test]
+    fn out_of_range_local_noise_is_named() {
+        for (stage, value) in [
+            ("pyramid.gsid", "-0.5"),
+            ("pyramid.gsid", "nan"),
+            ("atrous", "5"),
+        ] {
+            let mut spec = PipelineSpec::builtin("full").unwrap();
+            spec.apply_set(&format!("{stage}.local_noise={value}"))
+                .unwrap();
+            let err = spec.build().err().expect("rejected").to_string();
+            assert!(
+                err.contains("local_noise") && err.contains("0 to 4"),
+                "{stage} = {value}: {err}"
+            );
+        }
+        let mut spec = PipelineSpec::builtin("full").unwrap();
+        spec.apply_set("atrous.local_noise=0.5").unwrap();
+        assert!(spec.build().is_ok());
+    }
+}
