@@ -292,7 +292,7 @@ const TRIMMED_CHI2_MEAN: f64 = 0.437_724_594_903_639;
 /// pixels, which then read 1 % low on average; across a light's rim they differ by 10× and more.
 const DIRECTIONAL_RATIO: f64 = 3.0;
 /// Fewest pairs kept in each direction for that test.
-const MIN_DIRECTION_PAIRS: f64 = 6.0;
+const MIN_DIRECTION_PAIRS: usize = 6;
 /// Most values the blend's trimmed mean takes (its 5×5 window).
 const MAX_TRIMMED: usize = BLEND_TAPS;
 
@@ -425,11 +425,11 @@ fn pair_spread<const L: usize>(
         }
     }
     let mut dropped = [[0usize; L]; 2];
-    let mut kept = [[0.0f64; L]; 2];
+    let mut kept = [[0usize; L]; 2];
     for dir in 0..2 {
         for l in 0..L {
             dropped[dir][l] = (n[dir][l] as f64 * TRIM) as usize;
-            kept[dir][l] = (n[dir][l] - dropped[dir][l]) as f64;
+            kept[dir][l] = n[dir][l] - dropped[dir][l];
         }
     }
     let mut out = [([0.0; 3], 0); L];
@@ -441,10 +441,11 @@ fn pair_spread<const L: usize>(
         for l in 0..L {
             let (lo, hi) = (h[l].min(v[l]), h[l].max(v[l]));
             let both = kept[0][l] >= MIN_DIRECTION_PAIRS && kept[1][l] >= MIN_DIRECTION_PAIRS;
+            let (kh, kv) = (kept[0][l] as f64, kept[1][l] as f64);
             let mean = if both && hi > DIRECTIONAL_RATIO * lo {
                 lo
             } else {
-                (h[l] * kept[0][l] + v[l] * kept[1][l]) / (kept[0][l] + kept[1][l]).max(1.0)
+                (h[l] * kh + v[l] * kv) / (kh + kv).max(1.0)
             };
             out[l].0[k] = mean / (2.0 * TRIMMED_CHI2_MEAN);
         }
@@ -452,7 +453,7 @@ fn pair_spread<const L: usize>(
     for (l, (var, pairs)) in out.iter_mut().enumerate() {
         let total = n[0][l] + n[1][l];
         if (bits[l] & window).count_ones() as usize >= MIN_MATES && total >= 2 {
-            *pairs = kept[0][l] as usize + kept[1][l] as usize;
+            *pairs = kept[0][l] + kept[1][l];
         } else {
             *var = [0.0; 3];
         }
@@ -608,28 +609,18 @@ pub fn color_scales(
     reference: f64,
 ) -> Vec<f32> {
     let (w, h) = color.dims();
-    let brightness = crate::condition::robust_brightness(color);
-    if brightness.is_nan() || brightness <= 0.0 || w * h == 0 {
+    let Some(e) = tone_exposure(color, exposure).filter(|_| w * h > 0) else {
         return vec![1.0; w * h];
-    }
-    let e = exposure as f64 * crate::condition::UNIT_BRIGHTNESS / brightness;
-    let c = color.data();
-    let v = variance.data();
-    let mean = |x: usize, y: usize| {
-        c[3 * (y * w + x)..3 * (y * w + x) + 3]
-            .iter()
-            .map(|&x| x.max(0.0) as f64)
-            .sum::<f64>()
-            / 3.0
     };
+    let means: Vec<f64> = color.data().par_chunks_exact(3).map(channel_mean).collect();
+    let v = variance.data();
     let levels: Vec<f64> = (0..w * h)
         .into_par_iter()
         .map(|i| {
             let (x, y) = (i % w, i / w);
             let (mut sum, mut n) = (0.0, 0.0);
             for yy in y.saturating_sub(1)..(y + 2).min(h) {
-                for xx in x.saturating_sub(1)..(x + 2).min(w) {
-                    let m = mean(xx, yy);
+                for &m in &means[yy * w + x.saturating_sub(1)..yy * w + (x + 2).min(w)] {
                     if m.is_finite() {
                         sum += m;
                         n += 1.0;
@@ -637,13 +628,10 @@ pub fn color_scales(
                 }
             }
             let m = if n > 0.0 { sum / n } else { 0.0 };
-            let var = v[3 * i..3 * i + 3].iter().map(|&x| clean(x)).sum::<f64>() / 3.0;
-            var.sqrt() * e / (1.0 + e * m).powi(2)
+            tone_sd(&v[3 * i..3 * i + 3], m, e)
         })
         .collect();
-    let mut sorted = levels.clone();
-    let mid = sorted.len() / 2;
-    let (_, &mut typical, _) = sorted.select_nth_unstable_by(mid, f64::total_cmp);
+    let typical = median(&mut levels.clone());
     if typical.is_nan() || typical <= 0.0 {
         return vec![1.0; w * h];
     }
@@ -657,33 +645,50 @@ pub fn color_scales(
         .collect()
 }
 
+/// The exposure the tone curve's derivative is taken at: `exposure` relative to the image's own
+/// robust brightness, so no level moves with the render's exposure; none for a black image.
+fn tone_exposure(color: &Image, exposure: f32) -> Option<f64> {
+    let brightness = crate::condition::robust_brightness(color);
+    (brightness > 0.0).then(|| exposure as f64 * crate::condition::UNIT_BRIGHTNESS / brightness)
+}
+
+/// A pixel's mean over its channels, negative values counted as 0.
+fn channel_mean(c: &[f32]) -> f64 {
+    c.iter().map(|&x| x.max(0.0) as f64).sum::<f64>() / 3.0
+}
+
+/// The noise standard deviation of a pixel of variance `v` (its channels' mean) through the
+/// Reinhard curve's derivative e / (1 + e·m)² at mean colour `m`.
+fn tone_sd(v: &[f32], m: f64, e: f64) -> f64 {
+    let var = v.iter().map(|&x| clean(x)).sum::<f64>() / 3.0;
+    var.sqrt() * e / (1.0 + e * m).powi(2)
+}
+
+/// The upper median (element len / 2 in order); 0 for no values.
+fn median(values: &mut [f64]) -> f64 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    let mid = values.len() / 2;
+    *values.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
 /// The image's typical noise as the colour feature sees it: the median over pixels of the noise
 /// standard deviation (root of the mean channel variance) through the derivative of the
 /// Reinhard tone curve at the pixel, e / (1 + e·c)², with the exposure e taken relative to the
 /// image's own robust brightness (so the level does not change with the render's exposure). One
 /// number per image (and pyramid level), so a stage's σ can follow the sample count.
 pub fn tone_level(color: &Image, variance: &Image, exposure: f32) -> f64 {
-    let brightness = crate::condition::robust_brightness(color);
-    if brightness.is_nan() || brightness <= 0.0 {
+    let Some(e) = tone_exposure(color, exposure) else {
         return 0.0;
-    }
-    let e = exposure as f64 * crate::condition::UNIT_BRIGHTNESS / brightness;
+    };
     let mut levels: Vec<f64> = color
         .data()
         .par_chunks_exact(3)
         .zip(variance.data().par_chunks_exact(3))
-        .map(|(c, v)| {
-            let mean = c.iter().map(|&x| x.max(0.0) as f64).sum::<f64>() / 3.0;
-            let var = v.iter().map(|&x| clean(x)).sum::<f64>() / 3.0;
-            var.sqrt() * e / (1.0 + e * mean).powi(2)
-        })
+        .map(|(c, v)| tone_sd(v, channel_mean(c), e))
         .collect();
-    if levels.is_empty() {
-        return 0.0;
-    }
-    let mid = levels.len() / 2;
-    let (_, &mut median, _) = levels.select_nth_unstable_by(mid, f64::total_cmp);
-    median
+    median(&mut levels)
 }
 
 /// Radius of the window the blend's error estimate averages over (5×5).
