@@ -241,3 +241,48 @@ fn misspelled_and_out_of_range_keys_are_named() {
     let err = spec.build().err().unwrap().to_string();
     assert!(err.contains("median") && err.contains("outlier"), "{err}");
 }
+
+/// The presets' outlier stage bounds a flagged pixel's light instead of throwing it away: on a flat
+/// surface with slight noise, a highlight five times as bright as its surroundings is flagged, and
+/// stays brighter than them (at the test's limit), where a neighbour's colour would leave none of it.
+#[test]
+fn presets_keep_a_flagged_highlights_light_up_to_its_limit() {
+    let (w, h) = (9, 9);
+    let centre = 4 * w + 4;
+    for preset in ["fast", "balanced", "full", "quality"] {
+        let spec = PipelineSpec::builtin(preset).unwrap();
+        let stage = &spec.stages[0];
+        assert_eq!(stage.kind, "outlier", "{preset}");
+        let params: OutlierParams = stage.params.clone().try_into().unwrap();
+        let mut b = Buffers::new();
+        let wobble = |x: usize, y: usize| 0.01 * (((x * 7 + y * 13) % 5) as f32 - 2.0);
+        let mut color = Image::from_fn(w, h, 3, |x, y, _| 0.2 + wobble(x, y));
+        color.pixel_mut(centre).copy_from_slice(&[1.0; 3]);
+        b.insert("albedo", Image::from_fn(w, h, 3, |_, _, _| 0.5))
+            .unwrap();
+        b.insert(
+            "normal",
+            Image::from_fn(w, h, 3, |_, _, c| if c == 2 { 1.0 } else { 0.0 }),
+        )
+        .unwrap();
+        let detection = detect_on(&b, &color, &params);
+        assert!(detection.mask[centre], "{preset}: the highlight is flagged");
+        let guides = Guides {
+            albedo: b.get("albedo"),
+            normal: b.get("normal"),
+        };
+        let out = outlier::repair(
+            &color,
+            &detection,
+            &guides,
+            &params.detect_params(),
+            params.action,
+        );
+        let lit = luminance(out.pixel(centre));
+        let limit = detection.limit[centre];
+        assert!(
+            (lit - limit).abs() <= 1e-5 * limit && lit > 0.25,
+            "{preset}: the highlight kept luminance {lit} (limit {limit}, surroundings 0.2)"
+        );
+    }
+}
