@@ -9,7 +9,8 @@
 //! strength = 0.25                   # k, in noise standard deviations
 //! radius = 3                        # search window (2·3+1)²
 //! patch = 1                         # patches (2·1+1)²
-//! keep = 0.65                       # share of adjacent differences read as noise
+//! estimate = "directional"          # how the noise is read: "directional" or "trimmed"
+//! keep = 0.65                       # trimmed: share of adjacent differences read as noise
 //! ```
 //! A listed feature the render set does not have is skipped with a note.
 
@@ -34,10 +35,24 @@ pub struct PrefilterParams {
     pub radius: usize,
     /// Patch radius: time grows with (2·patch + 1)².
     pub patch: usize,
-    /// Share of a 5×5 window's adjacent-pixel differences read as noise, the smallest ones; the
-    /// rest is taken for structure. Higher finds few-sample noise where a pixel's samples see one
-    /// surface or another; lower keeps finer texture (no time cost).
+    /// How the feature's noise is read: from the smallest `keep` share of its window's adjacent
+    /// differences (`trimmed`), or the larger of that and the reading along the direction in which
+    /// it varies least (`directional`, which also finds the noise of a thin line's coverage).
+    pub estimate: Estimate,
+    /// `trimmed`: share of a 5×5 window's adjacent-pixel differences read as noise, the smallest
+    /// ones; the rest is taken for structure. Higher finds few-sample noise where a pixel's samples
+    /// see one surface or another; lower keeps finer texture (no time cost).
     pub keep: f64,
+}
+
+/// How a feature buffer's noise is read (`crate::prefilter`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Estimate {
+    /// The larger of [`prefilter::variance`] and [`prefilter::directional_variance`] per pixel.
+    Directional,
+    /// [`prefilter::variance`] with `keep`.
+    Trimmed,
 }
 
 impl Default for PrefilterParams {
@@ -47,6 +62,7 @@ impl Default for PrefilterParams {
             strength: 0.25,
             radius: 3,
             patch: 1,
+            estimate: Estimate::Directional,
             keep: 0.65,
         }
     }
@@ -152,7 +168,14 @@ impl Stage for PrefilterStage {
                 Feature::Depth => Kind::Depth,
                 Feature::Albedo | Feature::Material | Feature::Shadow => Kind::Plain,
             };
-            let variance = prefilter::variance(img, kind, p.keep);
+            let variance = match self.params.estimate {
+                Estimate::Directional => prefilter::variance(img, kind, p.keep)
+                    .into_iter()
+                    .zip(prefilter::directional_variance(img, kind))
+                    .map(|(trimmed, along)| trimmed.max(along))
+                    .collect(),
+                Estimate::Trimmed => prefilter::variance(img, kind, p.keep),
+            };
             let filtered = prefilter::filter(img, &variance, kind, &p);
             buffers.insert(feature.name(), filtered)?;
         }
