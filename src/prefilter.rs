@@ -101,7 +101,7 @@ const DIRECTIONS: [(isize, isize); 4] = [(1, 0), (0, 1), (1, 1), (1, -1)];
 /// its noise, which [`variance`]'s trimmed window takes for structure; a clean line, edge or flat
 /// area reads 0. On noise that is the same in every direction the smallest of four reads low (0.61
 /// of white noise's variance with three channels), which is why the stage takes the larger of this
-/// and [`variance`] (`crate::stages::prefilter::Estimate::Directional`).
+/// and [`variance`] ([`line_aware_variance`]).
 /// Unknown normals take no part; a pixel without two pairs in any direction reads 0.
 pub fn directional_variance(img: &Image, kind: Kind) -> Vec<f32> {
     let (w, h) = img.dims();
@@ -145,6 +145,16 @@ pub fn directional_variance(img: &Image, kind: Kind) -> Vec<f32> {
             }
         });
     out
+}
+
+/// Per pixel, the larger of [`variance`] (with `keep`) and [`directional_variance`]: the noise
+/// either reading finds, the first where it is the same in every direction, the second along lines.
+pub fn line_aware_variance(img: &Image, kind: Kind, keep: f64) -> Vec<f32> {
+    variance(img, kind, keep)
+        .into_iter()
+        .zip(directional_variance(img, kind))
+        .map(|(trimmed, along)| trimmed.max(along))
+        .collect()
 }
 
 /// Most pairs [`variance`] leaves out with the default `keep` in one pass of short lists; a

@@ -26,11 +26,7 @@ fn uniforms(seed: u64) -> impl FnMut() -> f32 {
 /// The variance the `prefilter` stage reads by default.
 fn variance(img: &Image, kind: Kind) -> Vec<f32> {
     match PrefilterParams::default().estimate {
-        Estimate::Directional => prefilter::variance(img, kind, params().keep)
-            .into_iter()
-            .zip(prefilter::directional_variance(img, kind))
-            .map(|(trimmed, along)| trimmed.max(along))
-            .collect(),
+        Estimate::Directional => prefilter::line_aware_variance(img, kind, params().keep),
         Estimate::Trimmed => prefilter::variance(img, kind, params().keep),
     }
 }

@@ -49,7 +49,8 @@ pub struct PrefilterParams {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Estimate {
-    /// The larger of [`prefilter::variance`] and [`prefilter::directional_variance`] per pixel.
+    /// [`prefilter::line_aware_variance`]: the larger of the trimmed reading and the one along
+    /// the direction the buffer varies least.
     Directional,
     /// [`prefilter::variance`] with `keep`.
     Trimmed,
@@ -169,11 +170,7 @@ impl Stage for PrefilterStage {
                 Feature::Albedo | Feature::Material | Feature::Shadow => Kind::Plain,
             };
             let variance = match self.params.estimate {
-                Estimate::Directional => prefilter::variance(img, kind, p.keep)
-                    .into_iter()
-                    .zip(prefilter::directional_variance(img, kind))
-                    .map(|(trimmed, along)| trimmed.max(along))
-                    .collect(),
+                Estimate::Directional => prefilter::line_aware_variance(img, kind, p.keep),
                 Estimate::Trimmed => prefilter::variance(img, kind, p.keep),
             };
             let filtered = prefilter::filter(img, &variance, kind, &p);
