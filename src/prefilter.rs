@@ -123,11 +123,15 @@ pub fn directional_variance(img: &Image, kind: Kind) -> Vec<f32> {
                 }
                 let mut least = f64::INFINITY;
                 for (dx, dy) in DIRECTIONS {
+                    // The line's pixels, each looked up once.
+                    let line: [Option<usize>; 2 * DIRECTION_REACH as usize + 1] =
+                        std::array::from_fn(|s| {
+                            let t = s as isize - DIRECTION_REACH;
+                            index(x + t * dx, y + t * dy)
+                        });
                     let (mut sum, mut pairs) = (0.0f64, 0usize);
-                    for t in -DIRECTION_REACH..DIRECTION_REACH {
-                        let a = index(x + t * dx, y + t * dy);
-                        let b = index(x + (t + 1) * dx, y + (t + 1) * dy);
-                        if let (Some(a), Some(b)) = (a, b) {
+                    for pair in line.windows(2) {
+                        if let [Some(a), Some(b)] = *pair {
                             for k in 0..c {
                                 let d = data[a * c + k] as f64 - data[b * c + k] as f64;
                                 sum += d * d;
