@@ -69,12 +69,16 @@ fn rule_params(rule: Rule) -> OutlierParams {
     }
 }
 
-fn detect_on(buffers: &Buffers, color: &Image, params: &OutlierParams) -> Detection {
-    let guides = Guides {
+/// The set's albedo and normal, as the stage gives them to detection and repair.
+fn guides(buffers: &Buffers) -> Guides<'_> {
+    Guides {
         albedo: buffers.get("albedo"),
         normal: buffers.get("normal"),
-    };
-    outlier::detect(color, &guides, &params.detect_params())
+    }
+}
+
+fn detect_on(buffers: &Buffers, color: &Image, params: &OutlierParams) -> Detection {
+    outlier::detect(color, &guides(buffers), &params.detect_params())
 }
 
 /// Recall and false-positive rate of every rule at every spp (printed with `--nocapture`);
@@ -267,14 +271,10 @@ fn presets_keep_a_flagged_highlights_light_up_to_its_limit() {
         .unwrap();
         let detection = detect_on(&b, &color, &params);
         assert!(detection.mask[centre], "{preset}: the highlight is flagged");
-        let guides = Guides {
-            albedo: b.get("albedo"),
-            normal: b.get("normal"),
-        };
         let out = outlier::repair(
             &color,
             &detection,
-            &guides,
+            &guides(&b),
             &params.detect_params(),
             params.action,
         );
