@@ -57,6 +57,7 @@ pub mod pipeline;
 pub mod prefilter;
 pub mod progress;
 pub mod pyramid;
+pub mod regress;
 #[cfg(feature = "cli")]
 pub mod render;
 pub mod render_set;

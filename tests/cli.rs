@@ -331,6 +331,7 @@ fn ablate_prints_and_writes_the_table() {
         "without prefilter",
         "without pyramid",
         "without atrous",
+        "without regress",
         "without blend",
         "fixed σ (no noise measured)",
         "one σ per image (no per-pixel noise)",
@@ -343,9 +344,9 @@ fn ablate_prints_and_writes_the_table() {
         assert!(table.contains(variant), "missing {variant}: {table}");
     }
     let text = std::fs::read_to_string(&csv).unwrap();
-    // Header, then: full, five stages removed (the noise stage is not: later stages read it), the
+    // Header, then: full, six stages removed (the noise stage is not: later stages read it), the
     // four noise rows, eight weights zeroed, plain SID.
-    assert_eq!(text.lines().count(), 1 + 19, "{text}");
+    assert_eq!(text.lines().count(), 1 + 20, "{text}");
     assert!(text.starts_with("variant,ssim,psnr,relmse,seconds,delta_ssim"));
     let bad = gsid(&[
         "ablate",

@@ -133,6 +133,14 @@ fn most_atrous_iterations_run_in_bounded_memory() {
 }
 
 #[test]
+fn widest_regression_window_runs_in_bounded_memory() {
+    // Band planes hold the window's reach above and below: 33 rows of a 3-pixel-wide image.
+    let args = ["--pipeline", "full", "--set", "regress.radius=16"];
+    denoise_within(3, 2, &args, RSS_LIMIT_KIB);
+    refused(&["--set", "regress.radius=17"], "regress.radius");
+}
+
+#[test]
 fn largest_pyramid_settings_run_in_bounded_memory() {
     let args = [
         "--pipeline",

@@ -11,6 +11,7 @@ pub mod noise;
 pub mod outlier;
 pub mod prefilter;
 pub mod pyramid;
+pub mod regress;
 
 use std::time::Instant;
 
@@ -106,6 +107,7 @@ pub const KINDS: &[&str] = &[
     "outlier",
     "prefilter",
     "pyramid",
+    "regress",
 ];
 
 /// Builds a stage from its spec: a composite kind from its children and overrides, any other kind
@@ -132,6 +134,11 @@ pub fn build(spec: &StageSpec) -> Result<Box<dyn Stage>> {
             params(),
         )?)),
         "pyramid" => Ok(Box::new(pyramid::PyramidStage::from_spec(spec)?)),
+        "regress" => Ok(Box::new(regress::RegressStage::from_table(
+            id,
+            io,
+            params(),
+        )?)),
         other => Err(Error::config(
             format!("{id}.kind"),
             format!("unknown stage kind `{other}` (known: {})", KINDS.join(", ")),

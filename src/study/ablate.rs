@@ -97,8 +97,8 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
 }
 
 /// The rows that show what measuring the noise buys, for a pipeline with `noise` stages: every
-/// noise stage, noise key and blend taken out ("fixed σ", the behaviour before the stages followed
-/// the noise); one σ per image (every `local_noise` set to 0, where a stage follows each pixel's
+/// noise stage, noise key, blend and regression taken out ("fixed σ", the behaviour before the
+/// stages followed the noise; both mixes are weighed by the noise); one σ per image (every `local_noise` set to 0, where a stage follows each pixel's
 /// own noise too); the noise always estimated from the image (a `variance` buffer, if any,
 /// ignored); and the walks taken out (the pyramid removed, à-trous on the colour, σ still from
 /// the noise).
@@ -112,7 +112,9 @@ fn noise_variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
         return Ok(Vec::new());
     }
     let mut fixed = spec.clone();
-    fixed.stages.retain(|s| !is_noise(s) && s.kind != "blend");
+    fixed
+        .stages
+        .retain(|s| !is_noise(s) && s.kind != "blend" && s.kind != "regress");
     for s in &mut fixed.stages {
         s.params.remove("noise");
         s.children.retain(|c| !is_noise(c));
