@@ -4,28 +4,19 @@
 //!
 //! Run: `cargo bench --bench noise`.
 
-use std::path::Path;
+mod common;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use gsid::noise;
 use gsid::prefilter::{self, Kind};
 use gsid::render_set::Feature;
 use gsid::simd::Kernel;
 use gsid::stages::prefilter::PrefilterParams;
-use gsid::{condition, io, noise};
 
 fn bench_noise(c: &mut Criterion) {
-    let mut set = io::load_render_set(Path::new("fixtures/textured/spp4"))
-        .unwrap()
-        .set;
-    condition::sanitize(Some(&mut set.color), &mut set.features);
+    let (set, variance, filtered) = common::textured_4spp();
     let (color, features) = (&set.color, &set.features);
-    let variance = noise::estimate(color, features);
     let (w, h) = color.dims();
-    // A stand-in for a filtered image: the input with its noise halved.
-    let filtered = gsid::Image::from_fn(w, h, 3, |x, y, k| {
-        let (c, v) = (color.at(x, y)[k], variance.at(x, y)[k]);
-        c + 0.5 * v.sqrt()
-    });
     let mut group = c.benchmark_group(format!("noise, {w}x{h} textured 4 spp"));
     group.throughput(Throughput::Elements((w * h) as u64));
     group.sample_size(30);

@@ -4,27 +4,18 @@
 //!
 //! Run: `cargo bench --bench regress`.
 
-use std::path::Path;
+mod common;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use gsid::regress;
 use gsid::render_set::Feature;
 use gsid::simd::Kernel;
 use gsid::stages::regress::RegressParams;
-use gsid::{condition, io, noise, regress};
 
 fn bench_regress(c: &mut Criterion) {
-    let mut set = io::load_render_set(Path::new("fixtures/textured/spp4"))
-        .unwrap()
-        .set;
-    condition::sanitize(Some(&mut set.color), &mut set.features);
+    let (set, variance, filtered) = common::textured_4spp();
     let (color, features) = (&set.color, &set.features);
-    let variance = noise::estimate(color, features);
     let (w, h) = color.dims();
-    // A stand-in for a filtered image: the input with its noise halved.
-    let filtered = gsid::Image::from_fn(w, h, 3, |x, y, k| {
-        let (c, v) = (color.at(x, y)[k], variance.at(x, y)[k]);
-        c + 0.5 * v.sqrt()
-    });
     let inputs = regress::Inputs {
         noisy: color,
         filtered: &filtered,

@@ -532,30 +532,33 @@ mod tests {
         Image::from_fn(w, h, 3, |x, y, _| f(x, y))
     }
 
-    #[test]
-    fn a_linear_ramp_is_fitted_exactly_up_to_the_edge() {
-        // A ramp with no noise and a filter that flattened it: the fit recovers the ramp at
-        // every pixel, including the borders, where the window is one-sided.
-        let (w, h) = (20, 13);
-        let ramp = plane(w, h, |x, y| 0.1 + 0.01 * x as f32 + 0.02 * y as f32);
-        let variance = Image::filled(w, h, 3, 1e-4);
+    /// The fit of `img` (noisy and filtered alike) with a uniform variance `v`, no features, no
+    /// demodulation and no ridge, with weights that ignore colour (σ 1e3).
+    fn plain_fit(img: &Image, v: f32, radius: usize) -> Fit {
+        let (w, h) = img.dims();
         let p = Params {
             demodulate: false,
             sigma: 1e3,
             ridge: 0.0,
+            radius,
             ..Params::default()
         };
-        let fit = regress_with(
-            Kernel::Scalar,
-            Inputs {
-                noisy: &ramp,
-                filtered: &ramp,
-                variance: &variance,
-                albedo: None,
-                normal: None,
-            },
-            &p,
-        );
+        let inputs = Inputs {
+            noisy: img,
+            filtered: img,
+            variance: &Image::filled(w, h, 3, v),
+            albedo: None,
+            normal: None,
+        };
+        regress_with(Kernel::Scalar, inputs, &p)
+    }
+
+    #[test]
+    fn a_linear_ramp_is_fitted_exactly_up_to_the_edge() {
+        // A ramp with no noise: the fit recovers it at every pixel, including the borders, where
+        // the window is one-sided.
+        let ramp = plane(20, 13, |x, y| 0.1 + 0.01 * x as f32 + 0.02 * y as f32);
+        let fit = plain_fit(&ramp, 1e-4, Params::default().radius);
         for (g, t) in fit.color.data().iter().zip(ramp.data()) {
             assert!((g - t).abs() < 1e-5, "{g} vs {t}");
         }
@@ -563,29 +566,10 @@ mod tests {
 
     #[test]
     fn the_fits_variance_is_the_mean_over_its_window_in_the_middle() {
-        // Flat weights (σ large, no features): in the middle of the image the intercept of a
-        // symmetric window is the plain mean, variance v / n.
-        let (w, h) = (21, 21);
-        let img = Image::filled(w, h, 3, 0.5);
-        let variance = Image::filled(w, h, 3, 0.01);
-        let p = Params {
-            demodulate: false,
-            sigma: 1e3,
-            radius: 3,
-            ridge: 0.0,
-            ..Params::default()
-        };
-        let fit = regress_with(
-            Kernel::Scalar,
-            Inputs {
-                noisy: &img,
-                filtered: &img,
-                variance: &variance,
-                albedo: None,
-                normal: None,
-            },
-            &p,
-        );
+        // In the middle of the image the intercept of a symmetric window with flat weights is the
+        // plain mean, variance v / n.
+        let w = 21;
+        let fit = plain_fit(&Image::filled(w, w, 3, 0.5), 0.01, 3);
         let v = fit.variance[10 * w + 10];
         assert!((v - 0.01 / 49.0).abs() < 1e-7, "{v}");
         // At a corner only a quarter of the window is there and the fit extrapolates: more.

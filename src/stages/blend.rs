@@ -92,23 +92,12 @@ impl Stage for BlendStage {
     }
 
     fn execute_impl(&self, buffers: &mut Buffers, _ctx: &mut Context) -> Result<u64> {
-        let three = |name: &str| buffers.require_channels(name, 3);
-        let (filtered, original, variance) = (
-            three(&self.io.input)?,
-            three(&self.params.original)?,
-            three(&self.params.noise)?,
-        );
-        for (name, img) in [
-            (&self.params.original, original),
-            (&self.params.noise, variance),
-        ] {
-            if img.dims() != filtered.dims() {
-                return Err(Error::buffer(
-                    name,
-                    "does not match the filtered image's size",
-                ));
-            }
-        }
+        let (filtered, original, variance) = super::filtered_original_noise(
+            buffers,
+            &self.io.input,
+            &self.params.original,
+            &self.params.noise,
+        )?;
         let keep = noise::keep_weights(
             crate::simd::Kernel::detect(),
             original,

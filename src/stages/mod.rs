@@ -285,6 +285,28 @@ impl NoiseScaling {
     }
 }
 
+/// A filtered image (`input`), the colour it was filtered from (`original`) and that colour's
+/// variance (`noise`): three channels each, all the filtered image's size. What the stages that
+/// weigh a filter's change against the noise read (`blend`, `regress`).
+pub fn filtered_original_noise<'a>(
+    buffers: &'a Buffers,
+    input: &str,
+    original: &str,
+    noise: &str,
+) -> Result<(&'a Image, &'a Image, &'a Image)> {
+    let three = |name: &str| buffers.require_channels(name, 3);
+    let (filtered, original_img, variance) = (three(input)?, three(original)?, three(noise)?);
+    for (name, img) in [(original, original_img), (noise, variance)] {
+        if img.dims() != filtered.dims() {
+            return Err(Error::buffer(
+                name,
+                "does not match the filtered image's size",
+            ));
+        }
+    }
+    Ok((filtered, original_img, variance))
+}
+
 /// Deserialises a parameter table into `T`, naming the stage in errors.
 pub fn parse_params<T: serde::de::DeserializeOwned>(id: &str, params: toml::Table) -> Result<T> {
     T::deserialize(toml::Value::Table(params)).map_err(|e| {

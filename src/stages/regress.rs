@@ -140,23 +140,12 @@ impl Stage for RegressStage {
     }
 
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
-        let three = |name: &str| buffers.require_channels(name, 3);
-        let (filtered, noisy, variance) = (
-            three(&self.io.input)?,
-            three(&self.params.original)?,
-            three(&self.params.noise)?,
-        );
-        for (name, img) in [
-            (&self.params.original, noisy),
-            (&self.params.noise, variance),
-        ] {
-            if img.dims() != filtered.dims() {
-                return Err(Error::buffer(
-                    name,
-                    "does not match the filtered image's size",
-                ));
-            }
-        }
+        let (filtered, noisy, variance) = super::filtered_original_noise(
+            buffers,
+            &self.io.input,
+            &self.params.original,
+            &self.params.noise,
+        )?;
         let feature = |f: Feature| -> Result<_> {
             match buffers.features().get(f) {
                 Some(img) if img.dims() != filtered.dims() => Err(Error::buffer(

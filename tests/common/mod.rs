@@ -47,6 +47,26 @@ pub fn assert_bad_input(out: &Output, culprit: &str) {
     assert!(!err.contains("panicked"), "{err}");
 }
 
+/// `gsid denoise` of the Mitsuba box at 1 spp with `full` and `--set KEY=VALUE` must exit 2 with one
+/// line naming `culprit`, and write nothing.
+pub fn assert_set_refused(key_value: &str, culprit: &str) {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.exr");
+    let set = format!("{FIXTURE}/spp1");
+    let res = gsid(&[
+        "denoise",
+        &set,
+        "--pipeline",
+        "full",
+        "--set",
+        key_value,
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_bad_input(&res, culprit);
+    assert!(!out.exists(), "{key_value}: nothing written");
+}
+
 /// A small synthetic render set: colour with a bright square, and all five features.
 pub fn synthetic_set(w: usize, h: usize) -> Buffers {
     let mut b = Buffers::new();
