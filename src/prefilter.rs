@@ -239,6 +239,12 @@ fn pixel_variance<const L: usize, const T: usize>(
     out
 }
 
+/// Largest patch radius the stage accepts (a larger one is filtered offset by offset only).
+pub const MAX_PATCH: usize = 3;
+/// Largest search radius the stage accepts (likewise), and its offsets.
+pub const MAX_RADIUS: usize = 8;
+const MAX_OFFSETS: usize = (2 * MAX_RADIUS + 1) * (2 * MAX_RADIUS + 1);
+
 /// Rows one parallel task filters: every pixel's sums still run over the offsets in one fixed
 /// order, so the band size changes no bit.
 const BAND: usize = 16;
@@ -258,17 +264,37 @@ pub fn filter(img: &Image, variance: &[f32], kind: Kind, p: &Params) -> Image {
 
 /// [`filter`] with a chosen kernel for the weights' exponentials (all give the same bits).
 pub fn filter_with(kernel: Kernel, img: &Image, variance: &[f32], kind: Kind, p: &Params) -> Image {
+    filter_by(kernel, SPARSE, img, variance, kind, p)
+}
+
+/// A band is filtered pixel by pixel ([`filter_sparse`]) when fewer than one pixel in `SPARSE` is
+/// active, offset by offset otherwise: per active pixel the first costs about nine times what the
+/// second costs per pixel of the band (1024² albedo, all active or 3 % active).
+const SPARSE: usize = 8;
+
+/// [`filter_with`], a band taken pixel by pixel when fewer than one pixel in `sparse` is active
+/// (0: never, `usize::MAX`: always). Both ways give the same bits.
+fn filter_by(
+    kernel: Kernel,
+    sparse: usize,
+    img: &Image,
+    variance: &[f32],
+    kind: Kind,
+    p: &Params,
+) -> Image {
     let (w, h) = img.dims();
     let c = img.channels();
     let data = img.data();
     let (r, f) = (p.radius as isize, p.patch as isize);
     let nl = NlMeans {
         kernel: kernel.or_portable(),
+        sparse,
         kind,
         dims: (w, h, c),
-        data,
-        variance,
         known: (0..w * h).map(|i| known(img, kind, i)).collect(),
+        active: (0..w * h)
+            .map(|i| variance[i] > 0.0 && known(img, kind, i))
+            .collect(),
         r,
         f,
         k2: p.strength * p.strength,
@@ -299,14 +325,16 @@ pub fn filter_with(kernel: Kernel, img: &Image, variance: &[f32], kind: Kind, p:
 }
 
 /// What every band of [`filter_with`] reads.
-struct NlMeans<'a> {
+struct NlMeans {
     kernel: Kernel,
+    /// Bands with fewer than one active pixel in `sparse` are filtered pixel by pixel.
+    sparse: usize,
     kind: Kind,
     /// Width, height, channels.
     dims: (usize, usize, usize),
-    data: &'a [f32],
-    variance: &'a [f32],
     known: Vec<bool>,
+    /// Whether pixel i is filtered: known, with some noise.
+    active: Vec<bool>,
     /// Search and patch radius.
     r: isize,
     f: isize,
@@ -316,115 +344,141 @@ struct NlMeans<'a> {
     planes: Padded,
 }
 
-impl NlMeans<'_> {
-    /// Whether pixel i is filtered: known, with some noise.
-    #[inline(always)]
-    fn active(&self, i: usize) -> bool {
-        self.variance[i] > 0.0 && self.known[i]
-    }
-}
-
-/// Filters the `BAND` rows of band `band` into `rows`.
+/// Filters the `BAND` rows of band `band` into `rows`. Every loop runs over a contiguous run of
+/// the band's columns, so each compiles to vector lanes; each pixel's sums still take the offsets,
+/// the patch cells and the channels in the one order the results are defined by.
 #[inline(always)]
 fn filter_band(nl: &NlMeans, band: usize, rows: &mut [f32]) {
     let ((w, h, c), (r, f), k2) = (nl.dims, (nl.r, nl.f), nl.k2);
-    let (data, known, kind, kernel) = (nl.data, &nl.known, nl.kind, nl.kernel);
+    let (known, active, kind, kernel) = (&nl.known, &nl.active, nl.kind, nl.kernel);
     let edge = &nl.planes;
     let (chans, var, eps) = (&edge.planes[..c], &edge.planes[c], &edge.planes[c + 1]);
-    let active = |i: usize| nl.active(i);
     let terms = ((2 * f + 1) * (2 * f + 1)) as f64 * c as f64;
     let y0 = band * BAND;
     let y1 = (y0 + BAND).min(h);
+    let band_active = |x: usize| (y0..y1).any(|y| active[y * w + x]);
     // Only the columns an active pixel (and its patch) reaches are computed.
-    let Some(x_lo) = (0..w).find(|&x| (y0..y1).any(|y| active(y * w + x))) else {
+    let Some(x_lo) = (0..w).find(|&x| band_active(x)) else {
         return;
     };
+    let count = (y0 * w..y1 * w).filter(|&i| active[i]).count();
+    let fits = r as usize <= MAX_RADIUS && f as usize <= MAX_PATCH;
+    if fits && count.saturating_mul(nl.sparse) < w * (y1 - y0) {
+        return filter_sparse(nl, y0, y1, rows);
+    }
     let x_hi = (0..w)
         .rev()
-        .find(|&x| (y0..y1).any(|y| active(y * w + x)))
+        .find(|&x| band_active(x))
         .expect("an active column exists");
-    // Terms over the band's rows and columns widened by the patch radius.
-    let (tw, th) = (w + 2 * f as usize, y1 - y0 + 2 * f as usize);
-    let run = x_hi + 2 * f as usize + 1 - x_lo;
+    let n = x_hi + 1 - x_lo;
+    let side = 2 * f as usize + 1;
+    // Terms over the band's rows widened by the patch radius, and its columns x_lo..=x_hi
+    // widened likewise: term column t is pixel column x_lo − f + t.
+    let (tw, th) = (n + 2 * f as usize, y1 - y0 + 2 * f as usize);
     let mut term = vec![0.0f64; tw * th];
-    let mut across = vec![0.0f64; w * th];
-    let mut sum = vec![[0.0f64; 3]; (y1 - y0) * w];
-    let mut total = vec![0.0f64; (y1 - y0) * w];
-    let mut weight = vec![0.0f32; x_hi + 1 - x_lo];
+    // Sums over the patch's columns, then its rows; column t is pixel column x_lo + t.
+    let mut across = vec![0.0f64; n * th];
+    let mut dist = vec![0.0f64; n];
+    let mut weight = vec![0.0f32; n];
+    // Per channel, then the weight total: every band pixel's sums, row by row.
+    let mut sum = vec![0.0f64; c * (y1 - y0) * n];
+    let mut total = vec![0.0f64; (y1 - y0) * n];
     for oy in -r..=r {
         for ox in -r..=r {
-            for ty in 0..th {
+            for (ty, row) in term.chunks_exact_mut(tw).enumerate() {
                 let py = y0 as isize + ty as isize - f;
                 let a = edge.index(x_lo as isize - f, py);
                 let b = edge.index(x_lo as isize - f + ox, py + oy);
-                let row = &mut term[ty * tw + x_lo..ty * tw + x_lo + run];
                 row.fill(0.0);
                 for ch in chans.iter() {
-                    let (ua, ub) = (&ch[a..a + run], &ch[b..b + run]);
+                    let (ua, ub) = (&ch[a..a + tw], &ch[b..b + tw]);
                     for ((t, &u), &v) in row.iter_mut().zip(ua).zip(ub) {
                         let d = u - v;
                         *t += d * d;
                     }
                 }
-                let (va, vb, ea) = (&var[a..a + run], &var[b..b + run], &eps[a..a + run]);
+                let (va, vb, ea) = (&var[a..a + tw], &var[b..b + tw], &eps[a..a + tw]);
                 for (((t, &va), &vb), &ea) in row.iter_mut().zip(va).zip(vb).zip(ea) {
                     let expected = va + if vb < va { vb } else { va };
                     let scale = ea + k2 * (va + vb);
                     *t = (*t - c as f64 * expected) / scale;
                 }
             }
-            for ty in 0..th {
-                let row = &term[ty * tw..(ty + 1) * tw];
-                for x in x_lo..=x_hi {
-                    across[ty * w + x] = row[x..x + 2 * f as usize + 1].iter().sum();
+            for (row, acc) in term.chunks_exact(tw).zip(across.chunks_exact_mut(n)) {
+                acc.fill(-0.0);
+                for dx in 0..side {
+                    for (a, &t) in acc.iter_mut().zip(&row[dx..dx + n]) {
+                        *a += t;
+                    }
                 }
             }
+            // The columns whose partner x + ox is inside the image.
+            let lo = (x_lo as isize).max(-ox);
+            let hi = (x_hi as isize).min(w as isize - 1 - ox);
+            if lo > hi {
+                continue;
+            }
+            let (lo, hi) = (lo as usize, hi as usize);
             for y in y0..y1 {
                 let (ny, ly) = (y as isize + oy, y - y0);
                 if ny < 0 || ny >= h as isize {
                     continue;
                 }
-                // Who takes part: an active pixel and a known partner inside the image;
-                // the others weigh exp(−∞) = 0.
-                let takes_part = |x: usize| {
-                    let nx = x as isize + ox;
-                    nx >= 0
-                        && nx < w as isize
-                        && active(y * w + x)
-                        && known[ny as usize * w + nx as usize]
-                };
-                for (x, e) in (x_lo..=x_hi).zip(weight.iter_mut()) {
-                    *e = if takes_part(x) {
-                        let dist: f64 = (0..=2 * f as usize)
-                            .map(|dy| across[(ly + dy) * w + x])
-                            .sum();
-                        -(dist / terms).max(0.0) as f32
-                    } else {
-                        f32::NEG_INFINITY
-                    };
+                dist.fill(-0.0);
+                for dy in 0..side {
+                    for (d, &a) in dist
+                        .iter_mut()
+                        .zip(&across[(ly + dy) * n..(ly + dy + 1) * n])
+                    {
+                        *d += a;
+                    }
                 }
-                exp_neg_row(kernel, &mut weight);
-                for (x, &e) in (x_lo..=x_hi).zip(weight.iter()) {
-                    if e <= 0.0 {
-                        continue;
+                // Who takes part: an active pixel and a known partner inside the image; the
+                // others weigh exp(−∞) = 0.
+                weight.fill(f32::NEG_INFINITY);
+                let partners = ny as usize * w;
+                let here = &active[y * w + lo..=y * w + hi];
+                let there =
+                    &known[(partners as isize + lo as isize + ox) as usize..][..hi + 1 - lo];
+                let cols = lo - x_lo..hi + 1 - x_lo;
+                for (((e, &d), &a), &k) in weight[cols.clone()]
+                    .iter_mut()
+                    .zip(&dist[cols.clone()])
+                    .zip(here)
+                    .zip(there)
+                {
+                    let v = -(d / terms).max(0.0) as f32;
+                    *e = if a & k { v } else { f32::NEG_INFINITY };
+                }
+                exp_neg_row(kernel, &mut weight[cols.clone()]);
+                let at = edge.index(x_lo as isize + ox, ny);
+                let pixels = ly * n..(ly + 1) * n;
+                for (ch, plane) in chans.iter().enumerate() {
+                    let acc = &mut sum[ch * (y1 - y0) * n..][pixels.clone()];
+                    for ((s, &e), &u) in acc.iter_mut().zip(&weight).zip(&plane[at..at + n]) {
+                        *s += if e > 0.0 { e as f64 * u } else { 0.0 };
                     }
-                    let j = (ny * w as isize + x as isize + ox) as usize;
-                    let e = e as f64;
-                    let acc = &mut sum[ly * w + x];
-                    for ch in 0..c {
-                        acc[ch] += e * data[j * c + ch] as f64;
-                    }
-                    total[ly * w + x] += e;
+                }
+                for (t, &e) in total[pixels].iter_mut().zip(&weight) {
+                    *t += if e > 0.0 { e as f64 } else { 0.0 };
                 }
             }
         }
     }
     for (l, px) in rows.chunks_exact_mut(c).enumerate() {
-        if !active(y0 * w + l) {
+        let (ly, x) = (l / w, l % w);
+        if !active[(y0 + ly) * w + x] {
             continue;
         }
+        let p = ly * n + x - x_lo;
         // The pixel itself is its own partner at offset 0, weight exp(0) = 1, so total ≥ 1.
-        let mut v: [f64; 3] = std::array::from_fn(|ch| sum[l][ch] / total[l]);
+        let mut v: [f64; 3] = std::array::from_fn(|ch| {
+            if ch < c {
+                sum[ch * (y1 - y0) * n + p] / total[p]
+            } else {
+                0.0
+            }
+        });
         if kind == Kind::Normal {
             let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
             if len <= 1e-6 {
@@ -434,6 +488,94 @@ fn filter_band(nl: &NlMeans, band: usize, rows: &mut [f32]) {
         }
         for (o, x) in px.iter_mut().zip(v) {
             *o = x as f32;
+        }
+    }
+}
+
+/// [`filter_band`] pixel by pixel, for bands where few pixels are active: each active pixel's
+/// patch distances are summed cell by cell in the order the offset-wise sums take (columns within
+/// a patch row, then the rows), so the result is the same bits.
+#[inline(always)]
+fn filter_sparse(nl: &NlMeans, y0: usize, y1: usize, rows: &mut [f32]) {
+    let ((w, h, c), (r, f), k2) = (nl.dims, (nl.r, nl.f), nl.k2);
+    let (known, active, kind) = (&nl.known, &nl.active, nl.kind);
+    let edge = &nl.planes;
+    let (chans, var, eps) = (&edge.planes[..c], &edge.planes[c], &edge.planes[c + 1]);
+    let terms = ((2 * f + 1) * (2 * f + 1)) as f64 * c as f64;
+    let side = 2 * f as usize + 1;
+    // One patch row's sum of terms: the cells a.. and b.. of both patches, in column order.
+    let across = |a: usize, b: usize| {
+        let mut t = [0.0f64; 2 * MAX_PATCH + 1];
+        let t = &mut t[..side];
+        for ch in chans {
+            for ((t, &u), &v) in t.iter_mut().zip(&ch[a..a + side]).zip(&ch[b..b + side]) {
+                let d = u - v;
+                *t += d * d;
+            }
+        }
+        let (va, vb, ea) = (&var[a..a + side], &var[b..b + side], &eps[a..a + side]);
+        let mut sum = -0.0f64;
+        for (((t, &va), &vb), &ea) in t.iter().zip(va).zip(vb).zip(ea) {
+            let expected = va + if vb < va { vb } else { va };
+            let scale = ea + k2 * (va + vb);
+            sum += (t - c as f64 * expected) / scale;
+        }
+        sum
+    };
+    for y in y0..y1 {
+        for x in 0..w {
+            if !active[y * w + x] {
+                continue;
+            }
+            // Every offset's exponent first, so the offsets' chains of sums overlap in the
+            // pipeline and the exponentials run in vector lanes; then the sums, in offset order.
+            let mut partners = [0usize; MAX_OFFSETS];
+            let mut weight = [0.0f32; MAX_OFFSETS];
+            let mut n = 0;
+            for oy in -r..=r {
+                let ny = y as isize + oy;
+                if ny < 0 || ny >= h as isize {
+                    continue;
+                }
+                for ox in -r..=r {
+                    let nx = x as isize + ox;
+                    if nx < 0 || nx >= w as isize || !known[ny as usize * w + nx as usize] {
+                        continue;
+                    }
+                    let mut dist = -0.0f64;
+                    for dy in -f..=f {
+                        let (px, py) = (x as isize - f, y as isize + dy);
+                        dist += across(edge.index(px, py), edge.index(px + ox, py + oy));
+                    }
+                    weight[n] = -(dist / terms).max(0.0) as f32;
+                    partners[n] = edge.index(nx, ny);
+                    n += 1;
+                }
+            }
+            exp_neg_row(nl.kernel, &mut weight[..n]);
+            let mut sum = [0.0f64; 3];
+            let mut total = 0.0f64;
+            for (&e, &at) in weight[..n].iter().zip(&partners[..n]) {
+                if e > 0.0 {
+                    for (s, plane) in sum.iter_mut().zip(chans) {
+                        *s += e as f64 * plane[at];
+                    }
+                    total += e as f64;
+                }
+            }
+            let mut v: [f64; 3] =
+                std::array::from_fn(|ch| if ch < c { sum[ch] / total } else { 0.0 });
+            if kind == Kind::Normal {
+                let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                if len <= 1e-6 {
+                    continue;
+                }
+                v.iter_mut().for_each(|x| *x /= len);
+            }
+            let px = &mut rows[((y - y0) * w + x) * c..][..c];
+            for (o, x) in px.iter_mut().zip(v) {
+                *o = x as f32;
+            }
         }
     }
 }
@@ -517,6 +659,46 @@ mod tests {
         let mean = v.iter().map(|&x| x as f64).sum::<f64>() / v.len() as f64;
         // The smallest of four directions: 0.61 of the variance (0.0025) with three channels.
         assert!((0.55..0.67).contains(&(mean / 0.0025)), "{}", mean / 0.0025);
+    }
+
+    #[test]
+    fn pixel_by_pixel_and_offset_by_offset_give_the_same_bits() {
+        let p = Params {
+            strength: 0.25,
+            radius: 3,
+            patch: 1,
+            keep: 0.65,
+        };
+        // Noise on a few pixels only, on most of them, on a normal buffer with unknown pixels,
+        // and on 1×1 and odd-sized images.
+        let noisy = white_field(37, 5);
+        let normals = Image::from_fn(23, 19, 3, |x, y, k| {
+            if (x + 2 * y) % 7 == 0 {
+                0.0
+            } else {
+                [0.6, 0.0, 0.8][k] + 0.05 * ((x * 7 + y * 3 + k) % 5) as f32
+            }
+        });
+        let cases = [
+            (noisy.clone(), Kind::Plain, 3),
+            (noisy, Kind::Plain, 1),
+            (normals, Kind::Normal, 1),
+            (white_field(1, 2), Kind::Plain, 1),
+        ];
+        for (img, kind, every) in cases {
+            let v: Vec<f32> = (0..img.dims().0 * img.dims().1)
+                .map(|i| if i % every == 0 { 2.5e-3 } else { 0.0 })
+                .collect();
+            for kernel in [Kernel::Scalar, Kernel::Avx2] {
+                let offsets = filter_by(kernel, 0, &img, &v, kind, &p);
+                let pixels = filter_by(kernel, usize::MAX, &img, &v, kind, &p);
+                if img.dims().0 > 1 {
+                    assert_ne!(offsets.data(), img.data(), "{kind:?}: nothing filtered");
+                }
+                let bits = |im: &Image| im.data().iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&offsets), bits(&pixels), "{kind:?} every {every}");
+            }
+        }
     }
 
     #[test]

@@ -94,13 +94,13 @@ impl PrefilterParams {
                 "above 0, at most 10",
             ));
         }
-        if !(1..=8).contains(&self.radius) {
+        if !(1..=prefilter::MAX_RADIUS).contains(&self.radius) {
             return Err(Error::range("radius", self.radius, "1 to 8"));
         }
         if !(0.05..=0.95).contains(&self.keep) {
             return Err(Error::range("keep", self.keep, "0.05 to 0.95"));
         }
-        if self.patch > 3 {
+        if self.patch > prefilter::MAX_PATCH {
             return Err(Error::range("patch", self.patch, "0 to 3"));
         }
         Ok(())
