@@ -12,6 +12,7 @@ use rayon::prelude::*;
 
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
+use crate::fastmath::exp_neg;
 use crate::image::Image;
 use crate::render_set::Feature;
 
@@ -246,16 +247,21 @@ fn guided_expand(c: &Image, fine: &Image, coarse_guide: &Image) -> Image {
             let fy = (y as f32 + 0.5) * ch as f32 / h as f32 - 0.5;
             let y0 = fy.floor() as isize;
             // The spatial weights of the 4×4 taps depend only on the taps' offsets, which repeat
-            // along a row (two patterns at an exact 2× EXPAND): kept for the last offsets seen.
-            let mut cached: Option<([f32; 4], [[f32; 4]; 4])> = None;
+            // along a row (two patterns, alternating, at an exact 2× EXPAND): kept for the last two
+            // offsets seen.
+            let mut cached: [Option<([f32; 4], [[f32; 4]; 4])>; 2] = [None, None];
             for x in 0..w {
                 // Fine pixel centre in coarse pixel coordinates.
                 let fx = (x as f32 + 0.5) * cw as f32 / w as f32 - 0.5;
                 let x0 = fx.floor() as isize;
                 let dxs: [f32; 4] = std::array::from_fn(|a| (x0 - 1 + a as isize) as f32 - fx);
-                let spatial = match cached {
-                    Some((d, s)) if d.map(f32::to_bits) == dxs.map(f32::to_bits) => s,
-                    _ => {
+                let seen = cached
+                    .iter()
+                    .flatten()
+                    .find(|(d, _)| d.map(f32::to_bits) == dxs.map(f32::to_bits));
+                let spatial = match seen {
+                    Some(&(_, s)) => s,
+                    None => {
                         let s = std::array::from_fn(|b| {
                             let dy = (y0 - 1 + b as isize) as f32 - fy;
                             std::array::from_fn(|a| {
@@ -263,7 +269,7 @@ fn guided_expand(c: &Image, fine: &Image, coarse_guide: &Image) -> Image {
                                 gaussian((dx * dx + dy * dy).sqrt() as f64) as f32
                             })
                         });
-                        cached = Some((dxs, s));
+                        cached = [Some((dxs, s)), cached[0]];
                         s
                     }
                 };
@@ -281,7 +287,7 @@ fn guided_expand(c: &Image, fine: &Image, coarse_guide: &Image) -> Image {
                         let d2 =
                             ((g[0] - q[0]).powi(2) + (g[1] - q[1]).powi(2) + (g[2] - q[2]).powi(2))
                                 / 3.0;
-                        let wq = spatial * (-d2 * inv_r).exp();
+                        let wq = spatial * exp_neg(-d2 * inv_r);
                         let cq = c.at(qx, qy);
                         for k in 0..3 {
                             sum[k] += wq * cq[k];
