@@ -274,28 +274,39 @@ fn guided_expand(c: &Image, fine: &Image, coarse_guide: &Image) -> Image {
                     }
                 };
                 let g = fine.at(x, y);
-                let (mut sum, mut plain) = ([0.0f32; 3], [0.0f32; 3]);
-                let (mut wsum, mut psum) = (0.0f32, 0.0f32);
+                // The 16 taps' range exponents first (in vector lanes), then the sums in tap order.
+                let mut arg = [0.0f32; 16];
+                let mut tap = [None; 16];
                 for (b, qy) in (y0 - 1..=y0 + 2).enumerate() {
                     for (a, qx) in (x0 - 1..=x0 + 2).enumerate() {
                         if qx < 0 || qy < 0 || qx >= cw as isize || qy >= ch as isize {
                             continue;
                         }
                         let (qx, qy) = (qx as usize, qy as usize);
-                        let spatial = spatial[b][a];
                         let q = coarse_guide.at(qx, qy);
                         let d2 =
                             ((g[0] - q[0]).powi(2) + (g[1] - q[1]).powi(2) + (g[2] - q[2]).powi(2))
                                 / 3.0;
-                        let wq = spatial * exp_neg(-d2 * inv_r);
-                        let cq = c.at(qx, qy);
-                        for k in 0..3 {
-                            sum[k] += wq * cq[k];
-                            plain[k] += spatial * cq[k];
-                        }
-                        wsum += wq;
-                        psum += spatial;
+                        arg[4 * b + a] = -d2 * inv_r;
+                        tap[4 * b + a] = Some((qx, qy));
                     }
+                }
+                let range = arg.map(exp_neg);
+                let (mut sum, mut plain) = ([0.0f32; 3], [0.0f32; 3]);
+                let (mut wsum, mut psum) = (0.0f32, 0.0f32);
+                for (t, &at) in tap.iter().enumerate() {
+                    let Some((qx, qy)) = at else {
+                        continue;
+                    };
+                    let spatial = spatial[t / 4][t % 4];
+                    let wq = spatial * range[t];
+                    let cq = c.at(qx, qy);
+                    for k in 0..3 {
+                        sum[k] += wq * cq[k];
+                        plain[k] += spatial * cq[k];
+                    }
+                    wsum += wq;
+                    psum += spatial;
                 }
                 // No similar coarse pixel: fall back to the plain spatial weights rather than dropping the correction.
                 let px = &mut row[3 * x..3 * x + 3];
@@ -317,24 +328,49 @@ fn guided_expand(c: &Image, fine: &Image, coarse_guide: &Image) -> Image {
 /// already is in range, so an untouched pyramid still reconstructs exactly.
 fn clamp_to_neighbourhood(img: &mut Image, guide: &Image, r: usize) {
     let (w, h) = img.dims();
+    let stride = img.channels() * w;
+    if stride == 0 {
+        return;
+    }
     let c = img.channels();
+    // Min and max are exact and the window a rectangle: over each row's 2r + 1 columns first
+    // (whole rows at a time, so the loops run in vector lanes), then over the 2r + 1 rows.
+    let across = |pick: fn(f32, f32) -> f32| {
+        let mut out = guide.data().to_vec();
+        out.par_chunks_mut(stride)
+            .zip(guide.data().par_chunks(stride))
+            .for_each(|(out, row)| {
+                for s in (1..=r.min(w - 1)).map(|d| c * d) {
+                    for (o, &v) in out[..stride - s].iter_mut().zip(&row[s..]) {
+                        *o = pick(*o, v);
+                    }
+                    for (o, &v) in out[s..].iter_mut().zip(&row[..stride - s]) {
+                        *o = pick(*o, v);
+                    }
+                }
+            });
+        out
+    };
+    let (lo_rows, hi_rows) = (across(f32::min), across(f32::max));
     img.data_mut()
-        .par_chunks_mut(c * w.max(1))
+        .par_chunks_mut(stride)
         .enumerate()
         .for_each(|(y, row)| {
-            for x in 0..w {
-                for k in 0..c {
-                    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-                    for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
-                        for xx in x.saturating_sub(r)..=(x + r).min(w - 1) {
-                            let v = guide.at(xx, yy)[k];
-                            lo = lo.min(v);
-                            hi = hi.max(v);
-                        }
-                    }
-                    let v = &mut row[c * x + k];
-                    *v = v.clamp(lo, hi);
+            let mut lo = lo_rows[y * stride..(y + 1) * stride].to_vec();
+            let mut hi = hi_rows[y * stride..(y + 1) * stride].to_vec();
+            for yy in (y.saturating_sub(r)..=(y + r).min(h - 1)).filter(|&yy| yy != y) {
+                let span = yy * stride..(yy + 1) * stride;
+                for ((l, h), (&a, &b)) in lo
+                    .iter_mut()
+                    .zip(hi.iter_mut())
+                    .zip(lo_rows[span.clone()].iter().zip(&hi_rows[span]))
+                {
+                    *l = l.min(a);
+                    *h = h.max(b);
                 }
+            }
+            for ((v, &l), &h) in row.iter_mut().zip(&lo).zip(&hi) {
+                *v = v.clamp(l, h);
             }
         });
 }
@@ -378,6 +414,7 @@ pub fn blend(
             expand(&correction, w, h)?
         };
         let b = band_weights.get(l).copied().unwrap_or(1.0);
+        let guide = clamp_radius.map(|_| fine.clone());
         let mut next = fine;
         if b != 1.0 {
             let low = expand(&reduced, w, h)?;
@@ -388,8 +425,8 @@ pub fn blend(
         for (v, &u) in next.data_mut().iter_mut().zip(up.data()) {
             *v += u;
         }
-        if let Some(radius) = clamp_radius {
-            clamp_to_neighbourhood(&mut next, &domain.forward(&d[l]), radius);
+        if let (Some(radius), Some(guide)) = (clamp_radius, &guide) {
+            clamp_to_neighbourhood(&mut next, guide, radius);
         }
         r = next;
     }
@@ -406,6 +443,35 @@ mod tests {
         Image::from_fn(w, h, 3, |x, y, c| {
             ((x * 13 + y * 7 + c * 5) % 17) as f32 / 4.0 + 0.01
         })
+    }
+
+    #[test]
+    fn the_neighbourhood_clamp_is_the_windows_min_and_max() {
+        for (w, h) in [(1, 1), (1, 6), (7, 1), (5, 9), (13, 4)] {
+            for r in 1..=3 {
+                let guide =
+                    Image::from_fn(w, h, 3, |x, y, c| ((x * 31 + y * 17 + c * 7) % 11) as f32);
+                let img =
+                    Image::from_fn(w, h, 3, |x, y, c| ((x * 5 + y * 3 + c) % 13) as f32 - 1.0);
+                let mut got = img.clone();
+                clamp_to_neighbourhood(&mut got, &guide, r);
+                for y in 0..h {
+                    for x in 0..w {
+                        for c in 0..3 {
+                            let cells = (y.saturating_sub(r)..=(y + r).min(h - 1)).flat_map(|yy| {
+                                (x.saturating_sub(r)..=(x + r).min(w - 1)).map(move |xx| (xx, yy))
+                            });
+                            let values: Vec<f32> =
+                                cells.map(|(xx, yy)| guide.at(xx, yy)[c]).collect();
+                            let lo = values.iter().copied().fold(f32::INFINITY, f32::min);
+                            let hi = values.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+                            let want = img.at(x, y)[c].clamp(lo, hi);
+                            assert_eq!(got.at(x, y)[c], want, "{w}x{h} r {r} at ({x}, {y}, {c})");
+                        }
+                    }
+                }
+            }
+        }
     }
 
     #[test]
