@@ -227,6 +227,9 @@ impl BlendDomain {
     }
 }
 
+/// A tap pattern's column offsets and its 4×4 spatial weights.
+type TapWeights = ([f32; 4], [[f32; 4]; 4]);
+
 /// Range scale of the guided EXPAND, in the blend domain (log: 0.5 ≈ a factor 1.6 in brightness).
 const GUIDE_SIGMA: f32 = 0.5;
 
@@ -249,7 +252,7 @@ fn guided_expand(c: &Image, fine: &Image, coarse_guide: &Image) -> Image {
             // The spatial weights of the 4×4 taps depend only on the taps' offsets, which repeat
             // along a row (two patterns, alternating, at an exact 2× EXPAND): kept for the last two
             // offsets seen.
-            let mut cached: [Option<([f32; 4], [[f32; 4]; 4])>; 2] = [None, None];
+            let mut cached: [Option<TapWeights>; 2] = [None, None];
             for x in 0..w {
                 // Fine pixel centre in coarse pixel coordinates.
                 let fx = (x as f32 + 0.5) * cw as f32 / w as f32 - 0.5;
