@@ -65,7 +65,7 @@ impl<'a> Surface<'a> {
     /// known (1/0). A missing feature is zeros, which every pair passes, as when it is not compared.
     fn planes(&self, n: usize) -> [Vec<f32>; KEYS] {
         let plane = |src: Option<&[f32]>, stride: usize, k: usize| match src {
-            Some(v) => v.iter().skip(k).step_by(stride).copied().collect(),
+            Some(v) => v.par_chunks_exact(stride).map(|px| px[k]).collect(),
             None => vec![0.0; n],
         };
         let (a, nrm, z) = (self.albedo, self.normal, self.depth);
@@ -80,6 +80,7 @@ impl<'a> Surface<'a> {
             Vec::new(),
         ];
         planes[7] = (0..n)
+            .into_par_iter()
             .map(|i| {
                 let known = planes[3][i] != 0.0 || planes[4][i] != 0.0 || planes[5][i] != 0.0;
                 if known {
@@ -637,7 +638,7 @@ pub fn color_scales(
     }
     let power = power * (typical / reference).min(1.0);
     levels
-        .iter()
+        .par_iter()
         .map(|&l| {
             let ratio = if l > 0.0 { typical / l } else { f64::INFINITY };
             ratio.powf(power).clamp(1.0 / MAX_SCALE, MAX_SCALE) as f32
