@@ -286,15 +286,18 @@ fn filter_by(
     let c = img.channels();
     let data = img.data();
     let (r, f) = (p.radius as isize, p.patch as isize);
+    let known_pixels: Vec<bool> = (0..w * h).map(|i| known(img, kind, i)).collect();
     let nl = NlMeans {
         kernel: kernel.or_portable(),
         sparse,
         kind,
         dims: (w, h, c),
-        known: (0..w * h).map(|i| known(img, kind, i)).collect(),
-        active: (0..w * h)
-            .map(|i| variance[i] > 0.0 && known(img, kind, i))
+        active: known_pixels
+            .iter()
+            .zip(variance)
+            .map(|(&k, &v)| k && v > 0.0)
             .collect(),
+        known: known_pixels,
         r,
         f,
         k2: p.strength * p.strength,
@@ -472,23 +475,30 @@ fn filter_band(nl: &NlMeans, band: usize, rows: &mut [f32]) {
         }
         let p = ly * n + x - x_lo;
         // The pixel itself is its own partner at offset 0, weight exp(0) = 1, so total ≥ 1.
-        let mut v: [f64; 3] = std::array::from_fn(|ch| {
+        let v = std::array::from_fn(|ch| {
             if ch < c {
                 sum[ch * (y1 - y0) * n + p] / total[p]
             } else {
                 0.0
             }
         });
-        if kind == Kind::Normal {
-            let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            if len <= 1e-6 {
-                continue;
-            }
-            v.iter_mut().for_each(|x| *x /= len);
+        write_pixel(kind, v, px);
+    }
+}
+
+/// Writes a filtered pixel's channel means `v` to `px`: a normal renormalised, or left as it was
+/// when the mean is too short to have a direction.
+#[inline(always)]
+fn write_pixel(kind: Kind, mut v: [f64; 3], px: &mut [f32]) {
+    if kind == Kind::Normal {
+        let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        if len <= 1e-6 {
+            return;
         }
-        for (o, x) in px.iter_mut().zip(v) {
-            *o = x as f32;
-        }
+        v.iter_mut().for_each(|x| *x /= len);
+    }
+    for (o, x) in px.iter_mut().zip(v) {
+        *o = x as f32;
     }
 }
 
@@ -563,19 +573,8 @@ fn filter_sparse(nl: &NlMeans, y0: usize, y1: usize, rows: &mut [f32]) {
                     total += e as f64;
                 }
             }
-            let mut v: [f64; 3] =
-                std::array::from_fn(|ch| if ch < c { sum[ch] / total } else { 0.0 });
-            if kind == Kind::Normal {
-                let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                if len <= 1e-6 {
-                    continue;
-                }
-                v.iter_mut().for_each(|x| *x /= len);
-            }
-            let px = &mut rows[((y - y0) * w + x) * c..][..c];
-            for (o, x) in px.iter_mut().zip(v) {
-                *o = x as f32;
-            }
+            let v = std::array::from_fn(|ch| if ch < c { sum[ch] / total } else { 0.0 });
+            write_pixel(kind, v, &mut rows[((y - y0) * w + x) * c..][..c]);
         }
     }
 }

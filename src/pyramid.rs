@@ -330,12 +330,11 @@ fn guided_expand(c: &Image, fine: &Image, coarse_guide: &Image) -> Image {
 /// or ringing, as the neighbourhood clamp of temporal anti-aliasing). Leaves `img` unchanged where it
 /// already is in range, so an untouched pyramid still reconstructs exactly.
 fn clamp_to_neighbourhood(img: &mut Image, guide: &Image, r: usize) {
-    let (w, h) = img.dims();
-    let stride = img.channels() * w;
+    let ((w, h), c) = (img.dims(), img.channels());
+    let stride = c * w;
     if stride == 0 {
         return;
     }
-    let c = img.channels();
     // Min and max are exact and the window a rectangle: over each row's 2r + 1 columns first
     // (whole rows at a time, so the loops run in vector lanes), then over the 2r + 1 rows.
     let across = |pick: fn(f32, f32) -> f32| {
