@@ -31,6 +31,12 @@ pub const TAPS: [f32; 5] = [1.0 / 16.0, 0.25, 0.375, 0.25, 1.0 / 16.0];
 /// Output rows per parallel task; each task copies its rows plus a halo into planes.
 const BAND_ROWS: usize = 32;
 
+/// The 5×5 taps of a pass, in raster order; tap t mirrors tap ALL_TAPS − 1 − t.
+const ALL_TAPS: usize = TAPS.len() * TAPS.len();
+const CENTER: usize = ALL_TAPS / 2;
+/// Taps after the centre, whose weights are kept for the mirrored ones.
+const FORWARD: usize = CENTER;
+
 /// One filter pass with taps `step` pixels apart and scale `sigma` of the difference.
 ///
 /// `mask` (true = avoid) pixels give no weight to any pixel, themselves included; a pixel whose
@@ -90,29 +96,55 @@ pub fn pass_with(
             });
             let mut acc = Acc::new(w);
             let mut scratch = vec![0.0f32; w + 8];
-            for y in y_begin..y_end {
-                acc.clear();
-                for (a, &ha) in TAPS.iter().enumerate() {
-                    let ny = y as isize + (a as isize - 2) * step as isize;
-                    if ny < 0 || ny >= h as isize {
+            // The weights of the taps after the centre (raster order), for the last reach + 1
+            // rows. d is symmetric bit for bit, so a tap before the centre, from p to p + o, is
+            // the weight of the tap after it, from p + o back to p, computed |o_y| rows earlier
+            // (or in this row): half the distances, the same bits.
+            let slots = reach + 1;
+            let mut ring = vec![0.0f32; slots * FORWARD * (w + 8)];
+            let ring_at = |y: usize, t: usize| (y % slots * FORWARD + t - CENTER - 1) * (w + 8);
+            for y in y_begin.saturating_sub(reach)..y_end {
+                for t in CENTER + 1..ALL_TAPS {
+                    let Some((ny, lo, hi, dx)) = tap_run(t, y, step, w, h) else {
                         continue;
-                    }
-                    for (b, &hb) in TAPS.iter().enumerate() {
-                        let dx = (b as isize - 2) * step as isize;
-                        // Columns whose tap lies inside the image.
-                        let lo = (-dx).max(0) as usize;
-                        let hi = (w as isize - dx).clamp(0, w as isize) as usize;
-                        if lo >= hi {
-                            continue;
+                    };
+                    let center = feats.offset(lo as isize, y - first);
+                    let other = feats.offset(lo as isize + dx, ny - first);
+                    let at = ring_at(y, t) + lo;
+                    let e = &mut ring[at..at + (hi - lo).next_multiple_of(8)];
+                    distance_row(kernel, &feats, depth_weight, center, other, e);
+                    weigh(kernel, &mut e[..hi - lo], inv);
+                }
+                if y < y_begin {
+                    continue;
+                }
+                acc.clear();
+                for t in 0..ALL_TAPS {
+                    let Some((ny, lo, hi, dx)) = tap_run(t, y, step, w, h) else {
+                        continue;
+                    };
+                    let center = feats.offset(lo as isize, y - first);
+                    let other = feats.offset(lo as isize + dx, ny - first);
+                    let e: &[f32] = match t.cmp(&CENTER) {
+                        std::cmp::Ordering::Less => {
+                            // The mirror tap of pixel (lo + dx, ny), which lies |o_y| rows up.
+                            let at = ring_at(ny, ALL_TAPS - 1 - t);
+                            let from = (at as isize + lo as isize + dx) as usize;
+                            &ring[from..from + hi - lo]
                         }
-                        let center = feats.offset(lo as isize, y - first);
-                        let other = feats.offset(lo as isize + dx, ny as usize - first);
-                        let e = &mut scratch[..(hi - lo).next_multiple_of(8)];
-                        distance_row(kernel, &feats, depth_weight, center, other, e);
-                        let e = &mut e[..hi - lo];
-                        let acc = acc.range(lo, hi);
-                        add_tap(kernel, &cols, center, other, ha * hb, inv, e, acc);
-                    }
+                        std::cmp::Ordering::Equal => {
+                            let e = &mut scratch[..(hi - lo).next_multiple_of(8)];
+                            distance_row(kernel, &feats, depth_weight, center, other, e);
+                            weigh(kernel, &mut e[..hi - lo], inv);
+                            &e[..hi - lo]
+                        }
+                        std::cmp::Ordering::Greater => {
+                            let at = ring_at(y, t);
+                            &ring[at + lo..at + hi]
+                        }
+                    };
+                    let tap = TAPS[t / TAPS.len()] * TAPS[t % TAPS.len()];
+                    add_tap(kernel, &cols, center, other, tap, e, acc.range(lo, hi));
                 }
                 let row = &mut rows_out[3 * w * (y - y_begin)..3 * w * (y - y_begin + 1)];
                 acc.write(&color.data()[3 * w * y..3 * w * (y + 1)], row);
@@ -178,30 +210,48 @@ impl Acc {
     }
 }
 
+/// Tap t of the 5×5 (raster order) at row `y`: its row, the columns lo..hi whose tap lies inside
+/// the image, and its column offset; None when it leaves the image.
+fn tap_run(
+    t: usize,
+    y: usize,
+    step: usize,
+    w: usize,
+    h: usize,
+) -> Option<(usize, usize, usize, isize)> {
+    let side = TAPS.len();
+    let ny = y as isize + (t as isize / side as isize - 2) * step as isize;
+    let dx = (t as isize % side as isize - 2) * step as isize;
+    let lo = (-dx).max(0) as usize;
+    let hi = (w as isize - dx).clamp(0, w as isize) as usize;
+    (ny >= 0 && ny < h as isize && lo < hi).then_some((ny as usize, lo, hi, dx))
+}
+
+/// A run's differences `e` turned into exp(−d²·inv), in place.
+fn weigh(kernel: Kernel, e: &mut [f32], inv: f32) {
+    row_kernel!(kernel, scale_distances(e: &mut [f32], inv: f32));
+    exp_neg_row(kernel, e);
+}
+
 /// Adds one tap's weighted colour to the sums of a run of a row: the tap's B3 weight `tap` times
-/// exp(−d²/(2σ²)) times both pixels' keep weights, given the run's differences in `e` (turned
-/// into the exponentials in place).
-#[allow(clippy::too_many_arguments)]
+/// the run's exp(−d²/(2σ²)) `e` times both pixels' keep weights.
 fn add_tap(
     kernel: Kernel,
     cols: &FeaturePlanes,
     center: usize,
     other: usize,
     tap: f32,
-    inv: f32,
-    e: &mut [f32],
+    e: &[f32],
     acc: AccRange,
 ) {
     let n = e.len();
-    row_kernel!(kernel, scale_distances(e: &mut [f32], inv: f32));
-    exp_neg_row(kernel, e);
     let (red, green, blue) = (
         cols.lane(0, other, n),
         cols.lane(1, other, n),
         cols.lane(2, other, n),
     );
     let (keep, keep_center) = (cols.lane(3, other, n), cols.lane(3, center, n));
-    let (e, colour, keep) = (&*e, [red, green, blue], [keep, keep_center]);
+    let (colour, keep) = ([red, green, blue], [keep, keep_center]);
     row_kernel!(kernel, accumulate(e: &[f32], tap: f32, colour: [&[f32]; 3], keep: [&[f32]; 2], acc: AccRange))
 }
 
