@@ -29,7 +29,7 @@ pub const DEMODULATION_EPS: f32 = 0.02;
 pub const MAX_RADIUS: usize = 16;
 
 /// Output rows per parallel task; each task copies its rows plus the window's reach into planes.
-const BAND_ROWS: usize = 16;
+const BAND_ROWS: usize = 32;
 
 /// Pixels of a row whose window sums are formed together, side by side (one AVX2 register).
 const GROUP: usize = 8;
