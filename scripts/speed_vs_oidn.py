@@ -12,7 +12,8 @@ one run, median of 5. This script:
          "process" a fresh python3 that imports pyoidn, reads the EXRs, denoises once and writes the EXR;
        * gsid `balanced` and `full`: the whole `gsid denoise SET --pipeline NAME -o OUT.exr --quiet`
          process, default threads, on a folder that links only color/albedo/normal/depth;
-     each the median of `--runs` (default 5);
+     each the median of `--runs` (default 5), in rounds: one OIDN filter execution and one run of every
+     gsid pipeline and binary per round, so all see the same drift of a shared machine's load;
   3. prints a markdown table with every time's ratio to OIDN's filter and to OIDN's process time, under
      a header with the CPU, core count and the load average at start and end (a shared machine slows
      every figure).
@@ -98,6 +99,34 @@ def oidn_process(setdir, out, runs):
     return statistics.median(times), times
 
 
+def interleaved(device, setdir, linked, binaries, pipelines, tmp, runs):
+    """`runs` rounds of one OIDN filter execution and one run of every gsid pipeline and binary, in
+    turn: on a shared machine the load drifts within a run, and rounds make every method see the same
+    drift (timing OIDN's runs first and gsid's after moved their ratio by ±0.2). Returns OIDN's times
+    and gsid's per (pipeline, binary)."""
+    import numpy as np
+
+    color, albedo, normal = cd.load_set(setdir)
+    output = np.zeros_like(color)
+    flt = cd.oidn_filter(device, color, albedo, normal, output)
+    cd.oidn_check(device, f"filter setup for {setdir}")
+    oidn_times, gsid_times = [], {(name, g): [] for name in pipelines for g in binaries}
+    try:
+        for r in range(runs):
+            cd.note(f"round {r + 1} of {runs}: OIDN filter, then gsid {' '.join(pipelines)} ...")
+            start = time.perf_counter()
+            flt.execute()
+            oidn_times.append(time.perf_counter() - start)
+            cd.oidn_check(device, f"filter execution on {setdir}")
+            for name in pipelines:
+                for g in binaries:
+                    gsid_times[(name, g)] += cd.gsid_denoise(g, linked, name, tmp / f"{name}.exr", 1)[1]
+    finally:
+        flt.release()
+    cd.write_rgb(tmp / "oidn.exr", output)
+    return oidn_times, gsid_times
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description="gsid balanced/full against OIDN at 1024×1024, 4 spp (see the docstring).")
     p.add_argument("--runs", type=int, default=5, help="timed runs of each method (median)")
@@ -147,21 +176,17 @@ def main(argv=None):
     rows = {}
     with tempfile.TemporaryDirectory(prefix="speed_vs_oidn.") as tmp:
         tmp = Path(tmp)
-        cd.note("OIDN filter ...")
-        rows["OIDN filter (execute only)"] = cd.oidn_denoise(device, setdir, tmp / "oidn.exr", args.runs)
+        linked = cd.linked_set(setdir, cd.GSID_BUFFERS, tmp / "set")
+        oidn_times, gsid_times = interleaved(device, setdir, linked, binaries, args.pipelines, tmp, args.runs)
         device.release()
+        rows["OIDN filter (execute only)"] = (statistics.median(oidn_times), oidn_times)
         cd.note("OIDN process ...")
         rows["OIDN process (one-shot python3)"] = oidn_process(setdir, tmp / "oidn-process.exr", args.runs)
-        linked = cd.linked_set(setdir, cd.GSID_BUFFERS, tmp / "set")
         for name in args.pipelines:
-            times = {g: [] for g in binaries}
-            for _ in range(args.runs):
-                for g in binaries:
-                    cd.note(f"gsid {name} ({g}) ...")
-                    times[g] += cd.gsid_denoise(g, linked, name, tmp / f"{name}.exr", 1)[1]
             for g in binaries:
                 label = f" {g}" if len(binaries) > 1 else ""
-                rows[f"gsid `{name}` (process){label}"] = (statistics.median(times[g]), times[g])
+                times = gsid_times[(name, g)]
+                rows[f"gsid `{name}` (process){label}"] = (statistics.median(times), times)
     header["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
 
     filt = rows["OIDN filter (execute only)"][0]
