@@ -267,12 +267,10 @@ pub fn estimate_with(kernel: Kernel, color: &Image, features: &FeatureSet) -> Im
         .into_par_iter()
         .filter(|&i| (i / w) % 2 == 1 && mates.of(i).all(|j| raw[j].1 == 0))
         .collect();
+    let window = raw_window(&mates);
     let own: Vec<([f64; 3], usize)> = alone
         .par_iter()
-        .map(|&i| {
-            let window = raw_window(&mates);
-            pair_spread::<1>(&flat, &mates, window, i % w, i / w, w)[0]
-        })
+        .map(|&i| pair_spread::<1>(&flat, &mates, window, i % w, i / w, w)[0])
         .collect();
     for (&i, r) in alone.iter().zip(own) {
         raw[i] = r;
