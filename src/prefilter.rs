@@ -52,6 +52,27 @@ fn known(img: &Image, kind: Kind, i: usize) -> bool {
     kind != Kind::Normal || img.pixel(i).iter().any(|&v| v != 0.0)
 }
 
+/// The planes [`variance`] and [`directional_variance`] read: the channels, then 1 where a pixel
+/// takes part (inside the image and known), else 0; a margin of zeros as wide as their reach.
+fn reading_planes(img: &Image, kind: Kind) -> Padded {
+    let (w, h) = img.dims();
+    let c = img.channels();
+    let data = img.data();
+    Padded::new(
+        (w, h),
+        c + 1,
+        trim::RADIUS.max(DIRECTION_REACH) as usize,
+        Margin::Zeros,
+        |i, k| {
+            if k < c {
+                data[i * c + k] as f64
+            } else {
+                f64::from(u8::from(known(img, kind, i)))
+            }
+        },
+    )
+}
+
 /// The variance of every pixel's feature mean (mean over channels), from the squared differences
 /// of adjacent pixels in its 5×5 window: per channel the smallest `keep` share, so an edge or a
 /// texture the feature shows cleanly (crossing fewer pairs than the rest) reads as no noise. A
@@ -62,27 +83,14 @@ pub fn variance(img: &Image, kind: Kind, keep: f64) -> Vec<f32> {
 
 /// [`variance`] with a chosen kernel (all give the same bits).
 pub fn variance_with(kernel: Kernel, img: &Image, kind: Kind, keep: f64) -> Vec<f32> {
-    let (w, h) = img.dims();
-    let c = img.channels();
-    // The channels, then 1 where a pixel takes part (inside the image and known), else 0.
-    let data = img.data();
-    let planes = Padded::new(
-        (w, h),
-        c + 1,
-        trim::RADIUS as usize,
-        Margin::Zeros,
-        |i, k| {
-            if k < c {
-                data[i * c + k] as f64
-            } else {
-                f64::from(u8::from(known(img, kind, i)))
-            }
-        },
-    );
+    trimmed_of(kernel, &reading_planes(img, kind), img.dims(), keep)
+}
+
+/// [`variance`] of the `w`×`h` image whose [`reading_planes`] are `planes`.
+fn trimmed_of(kernel: Kernel, planes: &Padded, (w, h): (usize, usize), keep: f64) -> Vec<f32> {
     let unit = 2.0 * trimmed_chi2_mean(keep);
     let mut out = vec![0.0f32; w * h];
     out.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, out)| {
-        let planes = &planes;
         row_kernel!(kernel, variance_row(planes: &Padded, keep: f64, unit: f64, y: usize, out: &mut [f32]))
     });
     out
@@ -104,59 +112,81 @@ const DIRECTIONS: [(isize, isize); 4] = [(1, 0), (0, 1), (1, 1), (1, -1)];
 /// and [`variance`] ([`line_aware_variance`]).
 /// Unknown normals take no part; a pixel without two pairs in any direction reads 0.
 pub fn directional_variance(img: &Image, kind: Kind) -> Vec<f32> {
-    let (w, h) = img.dims();
-    let c = img.channels();
-    let data = img.data();
-    let index = |x: isize, y: isize| {
-        (x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h)
-            .then(|| y as usize * w + x as usize)
-            .filter(|&i| known(img, kind, i))
-    };
+    directional_with(Kernel::detect(), img, kind)
+}
+
+/// [`directional_variance`] with a chosen kernel (all give the same bits).
+pub fn directional_with(kernel: Kernel, img: &Image, kind: Kind) -> Vec<f32> {
+    directional_of(kernel, &reading_planes(img, kind), img.dims())
+}
+
+/// [`directional_variance`] of the `w`×`h` image whose [`reading_planes`] are `planes`.
+fn directional_of(kernel: Kernel, planes: &Padded, (w, h): (usize, usize)) -> Vec<f32> {
     let mut out = vec![0.0f32; w * h];
-    out.par_chunks_mut(w.max(1))
-        .enumerate()
-        .for_each(|(y, row)| {
-            for (x, o) in row.iter_mut().enumerate() {
-                let (x, y) = (x as isize, y as isize);
-                if index(x, y).is_none() {
-                    continue;
-                }
-                let mut least = f64::INFINITY;
-                for (dx, dy) in DIRECTIONS {
-                    // The line's pixels, each looked up once.
-                    let line: [Option<usize>; 2 * DIRECTION_REACH as usize + 1] =
-                        std::array::from_fn(|s| {
-                            let t = s as isize - DIRECTION_REACH;
-                            index(x + t * dx, y + t * dy)
-                        });
-                    let (mut sum, mut pairs) = (0.0f64, 0usize);
-                    for pair in line.windows(2) {
-                        if let [Some(a), Some(b)] = *pair {
-                            for k in 0..c {
-                                let d = data[a * c + k] as f64 - data[b * c + k] as f64;
-                                sum += d * d;
-                            }
-                            pairs += 1;
-                        }
-                    }
-                    if pairs >= 2 {
-                        least = least.min(sum / (2 * pairs * c) as f64);
-                    }
-                }
-                if least.is_finite() {
-                    *o = least as f32;
+    out.par_chunks_mut(w.max(1)).enumerate().for_each(
+        |(y, out)| row_kernel!(kernel, directional_row(planes: &Padded, y: usize, out: &mut [f32])),
+    );
+    out
+}
+
+/// [`directional_variance`] of row `y`, `LANES` pixels at a time.
+#[inline(always)]
+fn directional_row(planes: &Padded, y: usize, out: &mut [f32]) {
+    trim::by_lanes!(out, |x| pixel_directional::<LANES>(planes, x, y), |x| {
+        pixel_directional::<1>(planes, x, y)[0]
+    },);
+}
+
+/// The directional variances of pixels (x..x + L, y). A pair with a cell that takes no part adds
+/// 0 to its line's sum (exactly what leaving it out adds, as every term is ≥ 0).
+#[inline(always)]
+fn pixel_directional<const L: usize>(planes: &Padded, x: usize, y: usize) -> [f32; L] {
+    let (values, ok) = planes.planes.split_at(planes.planes.len() - 1);
+    let ok = &ok[0];
+    let c = values.len();
+    let mut least = [f64::INFINITY; L];
+    for (dx, dy) in DIRECTIONS {
+        let (mut sum, mut pairs) = ([0.0f64; L], [0usize; L]);
+        for t in -DIRECTION_REACH..DIRECTION_REACH {
+            let a = planes.at(x, y, (t * dx, t * dy));
+            let b = planes.at(x, y, ((t + 1) * dx, (t + 1) * dy));
+            let mut valid = [false; L];
+            for l in 0..L {
+                valid[l] = (ok[a + l] != 0.0) & (ok[b + l] != 0.0);
+                pairs[l] += usize::from(valid[l]);
+            }
+            for plane in values {
+                let (pa, pb) = (&plane[a..a + L], &plane[b..b + L]);
+                for l in 0..L {
+                    let d = pa[l] - pb[l];
+                    sum[l] += if valid[l] { d * d } else { 0.0 };
                 }
             }
-        });
+        }
+        for l in 0..L {
+            if pairs[l] >= 2 {
+                least[l] = least[l].min(sum[l] / (2 * pairs[l] * c) as f64);
+            }
+        }
+    }
+    let centre = planes.at(x, y, (0, 0));
+    let mut out = [0.0f32; L];
+    for l in 0..L {
+        if ok[centre + l] != 0.0 && least[l].is_finite() {
+            out[l] = least[l] as f32;
+        }
+    }
     out
 }
 
 /// Per pixel, the larger of [`variance`] (with `keep`) and [`directional_variance`]: the noise
 /// either reading finds, the first where it is the same in every direction, the second along lines.
 pub fn line_aware_variance(img: &Image, kind: Kind, keep: f64) -> Vec<f32> {
-    variance(img, kind, keep)
+    let kernel = Kernel::detect();
+    let planes = reading_planes(img, kind);
+    trimmed_of(kernel, &planes, img.dims(), keep)
         .into_iter()
-        .zip(directional_variance(img, kind))
+        .zip(directional_of(kernel, &planes, img.dims()))
         .map(|(trimmed, along)| trimmed.max(along))
         .collect()
 }
@@ -634,6 +664,70 @@ mod tests {
             );
             // Off the line, along the rows, the field is flat.
             assert!(along[w + 5] == 0.0 && along[(h / 2 + 1) * w + 5] == 0.0);
+        }
+    }
+
+    /// [`directional_variance`] as its doc states it, pixel by pixel: each line's cells looked up
+    /// with bounds and known checks, pairs with an unknown cell left out.
+    fn directional_textbook(img: &Image, kind: Kind) -> Vec<f32> {
+        let (w, h) = img.dims();
+        let c = img.channels();
+        let index = |x: isize, y: isize| {
+            (x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h)
+                .then(|| y as usize * w + x as usize)
+                .filter(|&i| known(img, kind, i))
+        };
+        let mut out = vec![0.0f32; w * h];
+        for (i, o) in out.iter_mut().enumerate() {
+            let (x, y) = ((i % w) as isize, (i / w) as isize);
+            if index(x, y).is_none() {
+                continue;
+            }
+            let mut least = f64::INFINITY;
+            for (dx, dy) in DIRECTIONS {
+                let (mut sum, mut pairs) = (0.0f64, 0usize);
+                for t in -DIRECTION_REACH..DIRECTION_REACH {
+                    let a = index(x + t * dx, y + t * dy);
+                    let b = index(x + (t + 1) * dx, y + (t + 1) * dy);
+                    if let (Some(a), Some(b)) = (a, b) {
+                        for k in 0..c {
+                            let d = img.pixel(a)[k] as f64 - img.pixel(b)[k] as f64;
+                            sum += d * d;
+                        }
+                        pairs += 1;
+                    }
+                }
+                if pairs >= 2 {
+                    least = least.min(sum / (2 * pairs * c) as f64);
+                }
+            }
+            if least.is_finite() {
+                *o = least as f32;
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn directional_gives_the_pixel_by_pixel_bits_with_either_kernel() {
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for (w, h) in [(1, 1), (2, 3), (5, 4), (9, 1), (23, 17), (41, 9)] {
+            let noisy = white_field(w.max(h), 3);
+            // Unknown (all-zero) normals on a diagonal stripe, noisy values elsewhere.
+            let img = Image::from_fn(w, h, 3, |x, y, k| {
+                if (x + 2 * y) % 7 == 0 {
+                    0.0
+                } else {
+                    noisy.pixel(y * noisy.width() + x)[k]
+                }
+            });
+            for kind in [Kind::Plain, Kind::Normal] {
+                let want = bits(&directional_textbook(&img, kind));
+                for kernel in [Kernel::Scalar, Kernel::detect()] {
+                    let got = bits(&directional_with(kernel, &img, kind));
+                    assert_eq!(got, want, "{w}x{h} {kind:?} {kernel:?}");
+                }
+            }
         }
     }
 
