@@ -15,7 +15,7 @@
 
 use rayon::prelude::*;
 
-use crate::image::Image;
+use crate::image::{par_vec, Image};
 use crate::padded::{Margin, Padded};
 use crate::render_set::{Feature, FeatureSet};
 use crate::simd::{row_kernel, Kernel};
@@ -250,7 +250,7 @@ pub fn estimate_with(kernel: Kernel, color: &Image, features: &FeatureSet) -> Im
         c[3 * i + k] as f64 / surface.scale(i)[k]
     });
     let mates = surface.mates(w, h, SMOOTH_RADIUS as usize);
-    let mut raw = vec![([0.0; 3], 0); w * h];
+    let mut raw = par_vec(([0.0; 3], 0), w * h);
     // Raw estimates on every other row: adjacent rows' 5×5 windows share 4 of their 5 rows, and
     // the 7×7 smoothing still reads every pair of the 9×9 around a pixel, so half the work reads
     // nearly the same noise.
@@ -746,7 +746,7 @@ pub fn keep_weights(
             .sum::<f64>()
             / 3.0
     });
-    let mut err = vec![(0.0, 0); w * h];
+    let mut err = par_vec((0.0, 0), w * h);
     err.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, out)| {
         let (diff2, mates) = (&diff2, &mates);
         row_kernel!(kernel, blend_error_row(diff2: &Padded, mates: &Mates, y: usize, out: &mut [(f64, usize)]))

@@ -221,7 +221,7 @@ fn surface_bits(guides: &Guides, p: &DetectParams, w: usize, h: usize) -> Vec<u6
     let plane = |img: Option<&Image>, k: usize| -> Vec<f32> {
         img.map_or_else(
             || vec![0.0; w * h],
-            |img| img.data().iter().skip(k).step_by(3).copied().collect(),
+            |img| img.data().par_chunks_exact(3).map(|px| px[k]).collect(),
         )
     };
     let planes = SurfacePlanes {
@@ -231,7 +231,7 @@ fn surface_bits(guides: &Guides, p: &DetectParams, w: usize, h: usize) -> Vec<u6
             || vec![false; w * h],
             |n| {
                 n.data()
-                    .chunks_exact(3)
+                    .par_chunks_exact(3)
                     .map(|v| v.iter().any(|&c| c != 0.0))
                     .collect()
             },

@@ -4,6 +4,8 @@
 
 use rayon::prelude::*;
 
+use crate::image::par_vec;
+
 /// What a margin cell holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum Margin {
@@ -34,7 +36,7 @@ impl Padded {
         let (wi, hi) = (w as isize, h as isize);
         let planes = (0..planes)
             .map(|k| {
-                let mut plane = vec![0.0; stride * (h + 2 * margin)];
+                let mut plane = par_vec(0.0, stride * (h + 2 * margin));
                 plane
                     .par_chunks_mut(stride)
                     .enumerate()

@@ -12,7 +12,7 @@
 use rayon::prelude::*;
 
 use crate::fastmath::exp_neg_row;
-use crate::image::Image;
+use crate::image::{par_vec, Image};
 use crate::noise::trimmed_chi2_mean;
 use crate::padded::{Margin, Padded};
 use crate::simd::{row_kernel, Kernel};
@@ -89,7 +89,7 @@ pub fn variance_with(kernel: Kernel, img: &Image, kind: Kind, keep: f64) -> Vec<
 /// [`variance`] of the `w`×`h` image whose [`reading_planes`] are `planes`.
 fn trimmed_of(kernel: Kernel, planes: &Padded, (w, h): (usize, usize), keep: f64) -> Vec<f32> {
     let unit = 2.0 * trimmed_chi2_mean(keep);
-    let mut out = vec![0.0f32; w * h];
+    let mut out = par_vec(0.0f32, w * h);
     out.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, out)| {
         row_kernel!(kernel, variance_row(planes: &Padded, keep: f64, unit: f64, y: usize, out: &mut [f32]))
     });
@@ -122,7 +122,7 @@ pub fn directional_with(kernel: Kernel, img: &Image, kind: Kind) -> Vec<f32> {
 
 /// [`directional_variance`] of the `w`×`h` image whose [`reading_planes`] are `planes`.
 fn directional_of(kernel: Kernel, planes: &Padded, (w, h): (usize, usize)) -> Vec<f32> {
-    let mut out = vec![0.0f32; w * h];
+    let mut out = par_vec(0.0f32, w * h);
     out.par_chunks_mut(w.max(1)).enumerate().for_each(
         |(y, out)| row_kernel!(kernel, directional_row(planes: &Padded, y: usize, out: &mut [f32])),
     );
@@ -316,14 +316,17 @@ fn filter_by(
     let c = img.channels();
     let data = img.data();
     let (r, f) = (p.radius as isize, p.patch as isize);
-    let known_pixels: Vec<bool> = (0..w * h).map(|i| known(img, kind, i)).collect();
+    let known_pixels: Vec<bool> = (0..w * h)
+        .into_par_iter()
+        .map(|i| known(img, kind, i))
+        .collect();
     let nl = NlMeans {
         kernel: kernel.or_portable(),
         sparse,
         kind,
         dims: (w, h, c),
         active: known_pixels
-            .iter()
+            .par_iter()
             .zip(variance)
             .map(|(&k, &v)| k && v > 0.0)
             .collect(),
@@ -677,7 +680,7 @@ mod tests {
                 .then(|| y as usize * w + x as usize)
                 .filter(|&i| known(img, kind, i))
         };
-        let mut out = vec![0.0f32; w * h];
+        let mut out = par_vec(0.0f32, w * h);
         for (i, o) in out.iter_mut().enumerate() {
             let (x, y) = ((i % w) as isize, (i / w) as isize);
             if index(x, y).is_none() {

@@ -19,7 +19,7 @@
 
 use rayon::prelude::*;
 
-use crate::image::Image;
+use crate::image::{par_vec, Image};
 use crate::simd::{row_kernel, Kernel};
 
 /// Added to the albedo before dividing by it: a black surface keeps its (small) colour.
@@ -124,7 +124,7 @@ pub fn regress_with(kernel: Kernel, inputs: Inputs, p: &Params) -> Fit {
     let kernel = kernel.or_portable();
     let (w, h) = inputs.noisy.dims();
     let mut color = Image::new(w, h, 3);
-    let mut variance = vec![0.0f32; w * h];
+    let mut variance = par_vec(0.0f32, w * h);
     if w == 0 || h == 0 {
         return Fit { color, variance };
     }

@@ -8,6 +8,8 @@
 
 use rayon::prelude::*;
 
+use crate::image::par_vec;
+
 /// Largest radius whose window's cells fit the bits of a `u64` (7×7).
 pub(crate) const MOST_RADIUS: usize = 3;
 
@@ -37,7 +39,7 @@ pub(crate) fn window_bits(
     };
     let (ahead, behind) = (cells(true), cells(false));
     let row = w.max(1);
-    let mut fwd = vec![0u64; w * h];
+    let mut fwd = par_vec(0u64, w * h);
     fwd.par_chunks_mut(row).enumerate().for_each(|(y, out)| {
         for &(bit, dx, dy) in &ahead {
             if let Some((lo, hi, j0)) = run(w, h, y, dx, dy) {
@@ -45,7 +47,10 @@ pub(crate) fn window_bits(
             }
         }
     });
-    let mut bits = fwd.clone();
+    let mut bits = par_vec(0u64, w * h);
+    bits.par_chunks_mut(row)
+        .zip(fwd.par_chunks(row))
+        .for_each(|(to, from)| to.copy_from_slice(from));
     bits.par_chunks_mut(row).enumerate().for_each(|(y, bits)| {
         for &(bit, dx, dy) in &behind {
             let Some((lo, hi, j0)) = run(w, h, y, dx, dy) else {

@@ -17,7 +17,7 @@ use exr::prelude::{f16, FlatSamples, LineOrder, SmallVec, Text, Vec2};
 use rayon::prelude::*;
 
 use crate::error::{Error, Result};
-use crate::image::Image;
+use crate::image::{par_vec, Image};
 
 pub use exr::prelude::Compression;
 
@@ -194,7 +194,7 @@ pub fn read(path: &Path, channels: usize, alpha: bool) -> Result<(Image, Frame)>
         offset.push(bytes_per_pixel);
         bytes_per_pixel += c.sample_type.bytes_per_sample();
     }
-    let mut data = vec![0.0f32; w * h * channels];
+    let mut data = par_vec(0.0f32, w * h * channels);
     let alpha_bytes = alpha.map_or(0, |a| list[a].sample_type.bytes_per_sample());
     let mut alpha_data = vec![0u8; w * h * alpha_bytes];
     let (mut rest, mut alpha_rest) = (data.as_mut_slice(), alpha_data.as_mut_slice());
