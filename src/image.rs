@@ -165,7 +165,10 @@ mod tests {
     fn par_vec_is_n_copies_of_its_value() {
         for n in [0, 1, 7, 1 << 20] {
             assert_eq!(par_vec(0.25f32, n), vec![0.25f32; n]);
-            assert_eq!(par_vec(([1.0f64; 3], 2usize), n), vec![([1.0f64; 3], 2usize); n]);
+            assert_eq!(
+                par_vec(([1.0f64; 3], 2usize), n),
+                vec![([1.0f64; 3], 2usize); n]
+            );
         }
         assert_eq!(Image::filled(3, 2, 3, 0.5).data(), &[0.5f32; 18]);
     }
