@@ -12,8 +12,9 @@ use crate::error::{Error, Result};
 ///
 /// Why: a buffer's pages are mapped when first written. Written inside a parallel stage loop,
 /// threads that fault on the same region wait on each other: the `feature` outlier rule's 8 MB
-/// table of surface-mates took 20 ms to fill on two threads against 11 ms on one. Written here first, in a
-/// loop that does nothing else, the faults cost about 1 µs a page and the stage's loop none.
+/// table of surface-mates took 20 ms to fill on two threads against 11 ms on one. Written here
+/// first, in a loop that does nothing else, the faults cost about 1 µs a page and the stage's
+/// loop none.
 pub(crate) fn par_vec<T: Clone + Send + Sync>(value: T, n: usize) -> Vec<T> {
     rayon::iter::repeat_n(value, n).collect()
 }

@@ -184,11 +184,12 @@ fn pixel_directional<const L: usize>(planes: &Padded, x: usize, y: usize) -> [f3
 pub fn line_aware_variance(img: &Image, kind: Kind, keep: f64) -> Vec<f32> {
     let kernel = Kernel::detect();
     let planes = reading_planes(img, kind);
-    trimmed_of(kernel, &planes, img.dims(), keep)
-        .into_iter()
+    let mut variance = trimmed_of(kernel, &planes, img.dims(), keep);
+    variance
+        .par_iter_mut()
         .zip(directional_of(kernel, &planes, img.dims()))
-        .map(|(trimmed, along)| trimmed.max(along))
-        .collect()
+        .for_each(|(trimmed, along)| *trimmed = trimmed.max(along));
+    variance
 }
 
 /// Most pairs [`variance`] leaves out with the default `keep` in one pass of short lists; a
@@ -680,7 +681,7 @@ mod tests {
                 .then(|| y as usize * w + x as usize)
                 .filter(|&i| known(img, kind, i))
         };
-        let mut out = par_vec(0.0f32, w * h);
+        let mut out = vec![0.0f32; w * h];
         for (i, o) in out.iter_mut().enumerate() {
             let (x, y) = ((i % w) as isize, (i / w) as isize);
             if index(x, y).is_none() {

@@ -48,10 +48,8 @@ pub(crate) fn window_bits(
         }
     });
     let mut bits = par_vec(0u64, w * h);
-    bits.par_chunks_mut(row)
-        .zip(fwd.par_chunks(row))
-        .for_each(|(to, from)| to.copy_from_slice(from));
     bits.par_chunks_mut(row).enumerate().for_each(|(y, bits)| {
+        bits.copy_from_slice(&fwd[y * w..y * w + bits.len()]);
         for &(bit, dx, dy) in &behind {
             let Some((lo, hi, j0)) = run(w, h, y, dx, dy) else {
                 continue;
