@@ -353,13 +353,13 @@ impl FeaturePlanes {
         let stride = width + 2 * pad;
         let plane_len = rows.len() * stride;
         let mut data = vec![0.0f32; lanes * plane_len];
-        // Lane by lane, so every plane is written in order.
-        for lane in 0..lanes {
-            let plane = &mut data[lane * plane_len..(lane + 1) * plane_len];
-            for (r, y) in rows.clone().enumerate() {
-                let out = &mut plane[r * stride + pad..r * stride + pad + width];
-                for (x, v) in out.iter_mut().enumerate() {
-                    *v = value(y * width + x, lane);
+        // Pixel by pixel, every lane of one pixel in turn: each source record is read once,
+        // while its cache line is loaded, rather than once per lane.
+        for (r, y) in rows.clone().enumerate() {
+            let at = r * stride + pad;
+            for x in 0..width {
+                for lane in 0..lanes {
+                    data[lane * plane_len + at + x] = value(y * width + x, lane);
                 }
             }
         }
