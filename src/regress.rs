@@ -311,6 +311,11 @@ fn window_sums(
     let (inv, known_c) = (at(INV), at(KNOWN));
     *sums = GroupSums::default();
     let ri = r as isize;
+    // The taps' u = dx / r, divided once here rather than at every tap of every row.
+    let mut us = [0.0f32; 2 * MAX_RADIUS + 1];
+    for (j, u) in us[..2 * r + 1].iter_mut().enumerate() {
+        *u = (j as isize - ri) as f32 / r as f32;
+    }
     for dy in -ri..=ri {
         let mut t = [[0.0f32; GROUP]; 3];
         let mut c0 = [[0.0f32; GROUP]; 3];
@@ -339,9 +344,8 @@ fn window_sums(
                 e[l] = falloff(f2 * inv[l] + a2 * inv_albedo);
             }
         }
-        for (j, e) in e[..2 * r + 1].iter().enumerate() {
+        for (j, (e, &u)) in e[..2 * r + 1].iter().zip(&us).enumerate() {
             let ld = |l: usize| load(lanes[l], row + j);
-            let u = (j as isize - ri) as f32 / r as f32;
             let no = [ld(N), ld(N + 1), ld(N + 2)];
             let (known_o, valid) = (ld(KNOWN), ld(VALID));
             let color = [ld(C), ld(C + 1), ld(C + 2)];
