@@ -114,8 +114,8 @@ const F: usize = 3; // filtered colour, demodulated (3)
 const V: usize = 6; // noise variance, demodulated, mean over channels
 const INV: usize = 7; // 1 / (2σ² v + floor)
 const A: usize = 8; // albedo (3)
-const N: usize = 11; // normal (3)
-const KNOWN: usize = 14; // 1 where the normal is known (non-zero)
+const N: usize = 11; // normal (3); NaN where VALID is 0
+const KNOWN: usize = 14; // 1 where the normal is known (non-zero), 0 where not; NaN where VALID is 0
 const VALID: usize = 15; // 1 inside the image with finite inputs, 0 in the margin
 const LANES: usize = 16;
 
@@ -180,6 +180,11 @@ impl Planes {
         let stride = w + 2 * r + 8;
         let rows = y1 - y0 + 2 * r;
         let mut lanes = vec![vec![0.0f32; stride * rows]; LANES];
+        // A cell that takes no part matches no pixel's normal: its NaNs fail both tests of
+        // `window_sums`, so the kernel needs no VALID factor.
+        for lane in &mut lanes[N..=KNOWN] {
+            lane.fill(f32::NAN);
+        }
         let inv_scale = 2.0 * p.sigma * p.sigma;
         for row in 0..rows {
             let y = (y0 + row) as isize - r as isize;
@@ -221,16 +226,13 @@ impl Planes {
                 v_mean /= 3.0;
                 lanes[V][cell] = v_mean;
                 lanes[INV][cell] = 1.0 / (inv_scale * v_mean + VARIANCE_FLOOR);
-                if let Some(n) = inputs.normal {
-                    let n = n.pixel(i);
-                    let known = n.iter().all(|v| v.is_finite()) && n.iter().any(|&v| v != 0.0);
-                    if known {
-                        for k in 0..3 {
-                            lanes[N + k][cell] = n[k];
-                        }
-                        lanes[KNOWN][cell] = 1.0;
-                    }
+                let normal = inputs.normal.map(|n| n.pixel(i)).filter(|n| {
+                    n.iter().all(|v| v.is_finite()) && n.iter().any(|&v| v != 0.0)
+                });
+                for k in 0..3 {
+                    lanes[N + k][cell] = normal.map_or(0.0, |n| n[k]);
                 }
+                lanes[KNOWN][cell] = if normal.is_some() { 1.0 } else { 0.0 };
                 lanes[VALID][cell] = 1.0;
             }
         }
@@ -347,15 +349,16 @@ fn window_sums(
         for (j, (e, &u)) in e[..2 * r + 1].iter().zip(&us).enumerate() {
             let ld = |l: usize| load(lanes[l], row + j);
             let no = [ld(N), ld(N + 1), ld(N + 2)];
-            let (known_o, valid) = (ld(KNOWN), ld(VALID));
+            let known_o = ld(KNOWN);
             let color = [ld(C), ld(C + 1), ld(C + 2)];
             let var = ld(V);
             for l in 0..GROUP {
                 let dot = nc[0][l] * no[0][l] + nc[1][l] * no[1][l] + nc[2][l] * no[2][l];
                 // `|` on bools, not `||`: no branch, so the lanes stay in one register. Two
-                // unknown normals match.
+                // unknown normals match; a cell outside the image or with non-finite inputs
+                // (NaN normal and KNOWN) matches none.
                 let same = (dot >= cos) | ((known_c[l] + known_o[l]) == 0.0);
-                let wgt = if same { e[l] * valid[l] } else { 0.0 };
+                let wgt = if same { e[l] } else { 0.0 };
                 let wu = wgt * u;
                 t[0][l] += wgt;
                 t[1][l] += wu;
