@@ -177,6 +177,9 @@ pub struct Features {
     height: usize,
     records: Vec<[f32; FEATURE_LANES]>,
     depth_weight: f32,
+    /// Whether the material and shadow lanes (9..13) hold anything; when not they are 0 in every
+    /// record, and d's kernels leave their terms out (adding them would add +0).
+    material: bool,
 }
 
 impl Features {
@@ -263,6 +266,7 @@ impl Features {
         if let Some(sh) = fetch(Feature::Shadow, wt.shadow)? {
             packs.push((sh, 12, vec![wt.shadow]));
         }
+        let material = packs.iter().any(|&(_, lane, _)| (9..13).contains(&lane));
         if let Some(z) = fetch(Feature::Depth, wt.depth)? {
             packs.push((z, 13, vec![1.0]));
         }
@@ -294,6 +298,7 @@ impl Features {
                 height: h,
                 records,
                 depth_weight: wt.depth,
+                material,
             },
             off,
         ))
@@ -314,9 +319,17 @@ impl Features {
     /// Rows `rows` of the records as one plane per lane (structure of arrays), each row padded with
     /// `pad` zero columns on both sides, so 8 horizontally adjacent pixels are one vector load.
     pub fn planes(&self, rows: std::ops::Range<usize>, pad: usize) -> FeaturePlanes {
-        FeaturePlanes::build(self.width, rows, pad, USED_LANES, |i, lane| {
-            self.records[i][lane]
-        })
+        let lanes: &[usize] = if self.material {
+            &[0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13]
+        } else {
+            &[0, 1, 2, 3, 4, 5, 6, 7, 8, 13]
+        };
+        let mut planes =
+            FeaturePlanes::build_lanes(self.width, rows, pad, USED_LANES, lanes, |i, lane| {
+                self.records[i][lane]
+            });
+        planes.material = self.material;
+        planes
     }
 
     #[inline]
@@ -338,6 +351,9 @@ pub struct FeaturePlanes {
     stride: usize,
     plane_len: usize,
     data: Vec<f32>,
+    /// Whether lanes 9..13 (material and shadow) may be non-zero; they are left at 0, unfilled,
+    /// when not.
+    material: bool,
 }
 
 impl FeaturePlanes {
@@ -350,6 +366,19 @@ impl FeaturePlanes {
         lanes: usize,
         value: impl Fn(usize, usize) -> f32,
     ) -> FeaturePlanes {
+        let all: Vec<usize> = (0..lanes).collect();
+        FeaturePlanes::build_lanes(width, rows, pad, lanes, &all, value)
+    }
+
+    /// [`FeaturePlanes::build`] with only the lanes `filled` written; the others stay 0.
+    fn build_lanes(
+        width: usize,
+        rows: std::ops::Range<usize>,
+        pad: usize,
+        lanes: usize,
+        filled: &[usize],
+        value: impl Fn(usize, usize) -> f32,
+    ) -> FeaturePlanes {
         let stride = width + 2 * pad;
         let plane_len = rows.len() * stride;
         let mut data = vec![0.0f32; lanes * plane_len];
@@ -358,7 +387,7 @@ impl FeaturePlanes {
         for (r, y) in rows.clone().enumerate() {
             let at = r * stride + pad;
             for x in 0..width {
-                for lane in 0..lanes {
+                for &lane in filled {
                     data[lane * plane_len + at + x] = value(y * width + x, lane);
                 }
             }
@@ -369,6 +398,7 @@ impl FeaturePlanes {
             stride,
             plane_len,
             data,
+            material: true,
         }
     }
 
@@ -420,7 +450,7 @@ pub fn distance_row(
 mod avx2 {
     use std::arch::x86_64::*;
 
-    use super::{FeaturePlanes, DEPTH_EPS};
+    use super::{FeaturePlanes, DEPTH_EPS, USED_LANES};
 
     /// `super::distance_row` for the whole groups of 8 pairs; returns how many pairs it did.
     ///
@@ -438,11 +468,17 @@ mod avx2 {
         let abs_mask = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fff_ffff));
         let dw = _mm256_set1_ps(depth_weight);
         let full = out.len() / 8 * 8;
+        // Every load below reads lane < USED_LANES at center + x or other + x, x + 8 <= full: one
+        // check for all of them.
+        let last = (USED_LANES - 1) * planes.plane_len + center.max(other) + full;
+        assert!(last <= planes.data.len(), "a run beyond the planes");
+        let data = planes.data.as_ptr();
         let mut x = 0;
         while x < full {
-            // SAFETY: `lane` checks that 8 floats exist; unaligned loads.
+            // SAFETY: lane * plane_len + at + x + 8 <= last <= data.len() (checked above);
+            // unaligned loads.
             let ld = |lane: usize, at: usize| unsafe {
-                _mm256_loadu_ps(planes.lane(lane, at + x, 8).as_ptr())
+                _mm256_loadu_ps(data.add(lane * planes.plane_len + at + x))
             };
             let diff = |lane: usize| sub(ld(lane, center), ld(lane, other));
             let sq = |lane: usize| {
@@ -453,17 +489,17 @@ mod avx2 {
             let color = _mm256_sqrt_ps(add(add(sq(0), sq(1)), sq(2)));
             let albedo = _mm256_sqrt_ps(add(add(sq(3), sq(4)), sq(5)));
             let normal = add(add(sq(6), sq(7)), sq(8));
-            let material = add(add(add(abs(9), abs(10)), abs(11)), abs(12));
-            let depth = if depth_weight > 0.0 {
+            let mut d = add(add(color, albedo), normal);
+            if planes.material {
+                d = add(d, add(add(add(abs(9), abs(10)), abs(11)), abs(12)));
+            }
+            if depth_weight > 0.0 {
                 let denom = _mm256_max_ps(
                     _mm256_max_ps(ld(13, center), ld(13, other)),
                     _mm256_set1_ps(DEPTH_EPS),
                 );
-                _mm256_div_ps(mul(dw, abs(13)), denom)
-            } else {
-                _mm256_setzero_ps()
-            };
-            let d = add(add(add(add(color, albedo), normal), material), depth);
+                d = add(d, _mm256_div_ps(mul(dw, abs(13)), denom));
+            }
             // SAFETY: x + 8 <= out.len(); unaligned store.
             unsafe { _mm256_storeu_ps(out[x..x + 8].as_mut_ptr(), d) };
             x += 8;
@@ -541,6 +577,80 @@ mod tests {
         );
         assert_eq!(f.distance(0, 1), f.distance(1, 0));
         assert_eq!(f.distance(1, 1), 0.0);
+    }
+
+    /// Features of a `w`×`h` render with random colour, albedo, normal and depth, and material
+    /// and shadow buffers when `material`.
+    fn random_features(w: usize, h: usize, material: bool, seed: u64) -> Features {
+        let mut next = crate::trim::tests::xorshift(seed);
+        let mut random = |c: usize| {
+            let v = (0..w * h * c).map(|_| (next() >> 40) as f32 / (1u64 << 24) as f32);
+            Image::from_vec(w, h, c, v.collect()).unwrap()
+        };
+        let (color, mut b) = set_with(random(3).data().to_vec(), w, h);
+        let mut names = vec![("albedo", 3), ("normal", 3), ("depth", 1)];
+        if material {
+            names.extend([("material", 3), ("shadow", 1)]);
+        }
+        for (name, c) in names {
+            b.insert(name, random(c)).unwrap();
+        }
+        let wts = Weights::default();
+        Features::build(&color, b.features(), &wts, Tone::Reinhard, 1.0)
+            .unwrap()
+            .0
+    }
+
+    #[test]
+    fn distance_rows_give_the_pairs_distance_bits_with_either_kernel() {
+        // 37 wide: four whole groups of 8 and a tail. Without material and shadow buffers their
+        // lanes are left out of the planes and of d's vector kernel; with them they count.
+        let (w, h, pad) = (37, 4, 3);
+        for material in [false, true] {
+            let f = random_features(w, h, material, 7 + material as u64);
+            let planes = f.planes(0..h, pad);
+            for (dx, dy) in [(1, 0), (-2, 1), (0, 1), (3, 1)] {
+                for y in 0..h - 1 {
+                    let center = planes.offset(0, y);
+                    let other = planes.offset(dx, y + dy);
+                    for kernel in [Kernel::detect(), Kernel::Scalar] {
+                        let mut out = vec![0.0f32; w];
+                        distance_row(kernel, &planes, f.depth_weight(), center, other, &mut out);
+                        for (x, &d) in out.iter().enumerate() {
+                            let nx = x as isize + dx;
+                            if nx < 0 || nx >= w as isize {
+                                continue;
+                            }
+                            let want = f.distance(y * w + x, (y + dy) * w + nx as usize);
+                            assert_eq!(
+                                d.to_bits(),
+                                want.to_bits(),
+                                "{kernel:?} ({x}, {y}) + ({dx}, {dy}), material {material}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    #[should_panic]
+    fn a_distance_run_beyond_the_planes_is_refused() {
+        let (w, h) = (16, 2);
+        let f = random_features(w, h, false, 3);
+        let planes = f.planes(0..h, 0);
+        // Row 1 and 8 pixels past its end: beyond the last plane for the vector kernel's loads.
+        let mut out = vec![0.0f32; w + 8];
+        let center = planes.offset(0, 1);
+        distance_row(
+            Kernel::detect(),
+            &planes,
+            f.depth_weight(),
+            center,
+            center,
+            &mut out,
+        );
     }
 
     #[test]

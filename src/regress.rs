@@ -226,9 +226,10 @@ impl Planes {
                 v_mean /= 3.0;
                 lanes[V][cell] = v_mean;
                 lanes[INV][cell] = 1.0 / (inv_scale * v_mean + VARIANCE_FLOOR);
-                let normal = inputs.normal.map(|n| n.pixel(i)).filter(|n| {
-                    n.iter().all(|v| v.is_finite()) && n.iter().any(|&v| v != 0.0)
-                });
+                let normal = inputs
+                    .normal
+                    .map(|n| n.pixel(i))
+                    .filter(|n| n.iter().all(|v| v.is_finite()) && n.iter().any(|&v| v != 0.0));
                 for k in 0..3 {
                     lanes[N + k][cell] = normal.map_or(0.0, |n| n[k]);
                 }
