@@ -314,6 +314,8 @@ fn window_sums(
     let (inv, known_c) = (at(INV), at(KNOWN));
     *sums = GroupSums::default();
     let ri = r as isize;
+    // One window row's tap weights, rewritten row by row (zeroed once here, not at every row).
+    let mut e = [[0.0f32; GROUP]; 2 * MAX_RADIUS + 1];
     // The taps' u = dx / r, divided once here rather than at every tap of every row.
     let mut us = [0.0f32; 2 * MAX_RADIUS + 1];
     for (j, u) in us[..2 * r + 1].iter_mut().enumerate() {
@@ -327,7 +329,6 @@ fn window_sums(
         let row = (center as isize + dy * stride as isize - ri) as usize;
         // The weights of the whole window row first: they do not depend on each other, so their
         // chains of operations overlap.
-        let mut e = [[0.0f32; GROUP]; 2 * MAX_RADIUS + 1];
         for (j, e) in e[..2 * r + 1].iter_mut().enumerate() {
             let ld = |l: usize| load(lanes[l], row + j);
             let (fo, ao) = ([ld(F), ld(F + 1), ld(F + 2)], [ld(A), ld(A + 1), ld(A + 2)]);
