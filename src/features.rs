@@ -29,6 +29,8 @@ pub const FEATURE_LANES: usize = 16;
 pub const DEPTH_EPS: f32 = 1e-8;
 /// Record lanes that enter d (the rest is padding).
 pub const USED_LANES: usize = 14;
+/// Record lanes of the material weights (diffuse, reflective, refractive) and the shadow.
+const MATERIAL_LANES: std::ops::Range<usize> = 9..13;
 
 /// The eight feature weights W1..W8 (docs/ALGORITHM.md §2). Zero switches a feature off (and skips its buffer).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -177,7 +179,7 @@ pub struct Features {
     height: usize,
     records: Vec<[f32; FEATURE_LANES]>,
     depth_weight: f32,
-    /// Whether the material and shadow lanes (9..13) hold anything; when not they are 0 in every
+    /// Whether the material and shadow lanes ([`MATERIAL_LANES`]) hold anything; when not they are 0 in every
     /// record, and d's kernels leave their terms out (adding them would add +0).
     material: bool,
 }
@@ -266,7 +268,9 @@ impl Features {
         if let Some(sh) = fetch(Feature::Shadow, wt.shadow)? {
             packs.push((sh, 12, vec![wt.shadow]));
         }
-        let material = packs.iter().any(|&(_, lane, _)| (9..13).contains(&lane));
+        let material = packs
+            .iter()
+            .any(|&(_, lane, _)| MATERIAL_LANES.contains(&lane));
         if let Some(z) = fetch(Feature::Depth, wt.depth)? {
             packs.push((z, 13, vec![1.0]));
         }
@@ -319,13 +323,11 @@ impl Features {
     /// Rows `rows` of the records as one plane per lane (structure of arrays), each row padded with
     /// `pad` zero columns on both sides, so 8 horizontally adjacent pixels are one vector load.
     pub fn planes(&self, rows: std::ops::Range<usize>, pad: usize) -> FeaturePlanes {
-        let lanes: &[usize] = if self.material {
-            &[0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13]
-        } else {
-            &[0, 1, 2, 3, 4, 5, 6, 7, 8, 13]
-        };
+        let lanes: Vec<usize> = (0..USED_LANES)
+            .filter(|lane| self.material || !MATERIAL_LANES.contains(lane))
+            .collect();
         let mut planes =
-            FeaturePlanes::build_lanes(self.width, rows, pad, USED_LANES, lanes, |i, lane| {
+            FeaturePlanes::build_lanes(self.width, rows, pad, USED_LANES, &lanes, |i, lane| {
                 self.records[i][lane]
             });
         planes.material = self.material;
@@ -351,7 +353,7 @@ pub struct FeaturePlanes {
     stride: usize,
     plane_len: usize,
     data: Vec<f32>,
-    /// Whether lanes 9..13 (material and shadow) may be non-zero; they are left at 0, unfilled,
+    /// Whether the [`MATERIAL_LANES`] may be non-zero; they are left at 0, unfilled,
     /// when not.
     material: bool,
 }
