@@ -425,8 +425,8 @@ fn pair_spread<const L: usize>(
     bits.copy_from_slice(&mates.bits[y * w + x..y * w + x + L]);
     let (side, c) = (mates.side as isize, (mates.side / 2) as isize);
     let bit = |(dx, dy): (isize, isize)| ((dy + c) * side + dx + c) as u32;
-    // Per direction (0 horizontal, 1 vertical), its pairs in `PAIRS` order.
-    let mut valid = [[[false; L]; DIRECTION_PAIRS]; 2];
+    // Per direction (0 horizontal, 1 vertical), its pairs in `PAIRS` order; a pair that is not
+    // of surface-mates reads NaN, which the trimmed means leave out.
     let mut d2 = [[[[0.0f64; L]; DIRECTION_PAIRS]; 2]; 3];
     let mut n = [[0usize; L]; 2];
     let mut next = [0usize; 2];
@@ -434,16 +434,18 @@ fn pair_spread<const L: usize>(
         let dir = usize::from(a.1 != b.1);
         let p = next[dir];
         next[dir] += 1;
+        let mut mask = [0.0f64; L];
         for l in 0..L {
-            valid[dir][p][l] = bits[l] >> bit(a) & bits[l] >> bit(b) & 1 == 1;
-            n[dir][l] += usize::from(valid[dir][p][l]);
+            let valid = bits[l] >> bit(a) & bits[l] >> bit(b) & 1 == 1;
+            n[dir][l] += usize::from(valid);
+            mask[l] = trim::valid_or_nan(valid);
         }
         let (ia, ib) = (flat.at(x, y, a), flat.at(x, y, b));
         for (k, plane) in flat.planes.iter().enumerate() {
             let (pa, pb) = (&plane[ia..ia + L], &plane[ib..ib + L]);
             for l in 0..L {
                 let d = pa[l] - pb[l];
-                d2[k][dir][p][l] = d * d;
+                d2[k][dir][p][l] = d * d + mask[l];
             }
         }
     }
@@ -459,8 +461,8 @@ fn pair_spread<const L: usize>(
     for (k, d2) in d2.iter().enumerate() {
         // Two calls, not a closure over the directions: a closure is not inlined into the AVX2
         // copy of the row function.
-        let h = trim::lanes::<L, DIRECTION_PAIRS, DIRECTION_TRIMMED>(&d2[0], &valid[0], dropped[0]);
-        let v = trim::lanes::<L, DIRECTION_PAIRS, DIRECTION_TRIMMED>(&d2[1], &valid[1], dropped[1]);
+        let h = trim::lanes::<L, DIRECTION_PAIRS, DIRECTION_TRIMMED>(&d2[0], dropped[0]);
+        let v = trim::lanes::<L, DIRECTION_PAIRS, DIRECTION_TRIMMED>(&d2[1], dropped[1]);
         for l in 0..L {
             let (lo, hi) = (h[l].min(v[l]), h[l].max(v[l]));
             let both = kept[0][l] >= MIN_DIRECTION_PAIRS && kept[1][l] >= MIN_DIRECTION_PAIRS;
@@ -804,26 +806,26 @@ fn blend_errors<const L: usize>(
     let mut bits = [0u64; L];
     bits.copy_from_slice(&mates.bits[y * w + x..y * w + x + L]);
     let plane = &diff2.planes[0];
+    // A cell that is not a surface-mate reads NaN, which the trimmed mean leaves out.
     let mut values = [[0.0f64; L]; BLEND_TAPS];
-    let mut valid = [[false; L]; BLEND_TAPS];
     let mut n = [0usize; L];
-    for (cell, (value, ok)) in values.iter_mut().zip(valid.iter_mut()).enumerate() {
+    for (cell, value) in values.iter_mut().enumerate() {
         let (dx, dy) = (
             (cell % mates.side) as isize - r,
             (cell / mates.side) as isize - r,
         );
         let at = diff2.at(x, y, (dx, dy));
-        value.copy_from_slice(&plane[at..at + L]);
         for l in 0..L {
-            ok[l] = (bits[l] >> cell & 1 == 1) & (value[l] <= f64::MAX);
-            n[l] += usize::from(ok[l]);
+            let v = plane[at + l] + trim::valid_or_nan(bits[l] >> cell & 1 == 1);
+            n[l] += usize::from(v <= f64::MAX);
+            value[l] = v;
         }
     }
     let mut dropped = [0usize; L];
     for l in 0..L {
         dropped[l] = (n[l] as f64 * TRIM) as usize;
     }
-    let mean = trim::lanes::<L, BLEND_TAPS, BLEND_TRIMMED>(&values, &valid, dropped);
+    let mean = trim::lanes::<L, BLEND_TAPS, BLEND_TRIMMED>(&values, dropped);
     let mut out = [(0.0, 0); L];
     for l in 0..L {
         out[l] = (mean[l], n[l]);

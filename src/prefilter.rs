@@ -232,13 +232,16 @@ fn pixel_variance<const L: usize, const T: usize>(
     for (cell, &[a, b]) in cells.iter_mut().zip(&PAIRS) {
         *cell = (planes.at(x, y, a), planes.at(x, y, b));
     }
-    let mut valid = [[false; L]; MAX_PAIRS];
+    // Added to a pair's squared difference: NaN (left out of the trimmed means) where a cell
+    // takes no part.
+    let mut mask = [[0.0f64; L]; MAX_PAIRS];
     let mut n = [0usize; L];
-    for (ok_p, &(ia, ib)) in valid.iter_mut().zip(&cells) {
+    for (mask_p, &(ia, ib)) in mask.iter_mut().zip(&cells) {
         let (oa, ob) = (&ok[ia..ia + L], &ok[ib..ib + L]);
         for l in 0..L {
-            ok_p[l] = (oa[l] != 0.0) & (ob[l] != 0.0);
-            n[l] += usize::from(ok_p[l]);
+            let valid = (oa[l] != 0.0) & (ob[l] != 0.0);
+            n[l] += usize::from(valid);
+            mask_p[l] = trim::valid_or_nan(valid);
         }
     }
     let mut drop = [0usize; L];
@@ -248,14 +251,14 @@ fn pixel_variance<const L: usize, const T: usize>(
     let mut total = [0.0f64; L];
     let mut d2 = [[0.0f64; L]; MAX_PAIRS];
     for plane in &planes.planes[..c] {
-        for (d2_p, &(ia, ib)) in d2.iter_mut().zip(&cells) {
+        for ((d2_p, mask_p), &(ia, ib)) in d2.iter_mut().zip(&mask).zip(&cells) {
             let (pa, pb) = (&plane[ia..ia + L], &plane[ib..ib + L]);
             for l in 0..L {
                 let d = pa[l] - pb[l];
-                d2_p[l] = d * d;
+                d2_p[l] = d * d + mask_p[l];
             }
         }
-        let mean = trim::lanes::<L, MAX_PAIRS, T>(&d2, &valid, drop);
+        let mean = trim::lanes::<L, MAX_PAIRS, T>(&d2, drop);
         for l in 0..L {
             total[l] += mean[l] / unit;
         }

@@ -60,31 +60,31 @@ pub(crate) const PAIRS: [[(isize, isize); 2]; MAX_PAIRS] = {
     pairs
 };
 
-/// Per lane l, the mean of the valid `values[..][l]` without the `dropped[l]` largest, or 0 when
-/// none is kept. Values must be ≥ 0; one that is not finite counts as not valid. `dropped[l]` is
+/// Per lane l, the mean of the finite `values[..][l]` without the `dropped[l]` largest, or 0 when
+/// none is kept. Values must be ≥ 0 or NaN; a value that is not finite is left out, so a caller
+/// marks a cell that is not valid with NaN (adding [`valid_or_nan`] to its value). `dropped[l]` is
 /// at most `T`. A tie at the cut keeps as many copies as a sort would.
 ///
 /// The sum runs over `values` in order, so a lane's result depends on its own values alone.
 #[inline(always)]
 pub(crate) fn lanes<const L: usize, const N: usize, const T: usize>(
     values: &[[f64; L]; N],
-    valid: &[[bool; L]; N],
     dropped: [usize; L],
 ) -> [f64; L] {
-    // top[r][l]: lane l's (r + 1)-th largest valid value so far (−∞ while there are fewer). The
+    // top[r][l]: lane l's (r + 1)-th largest finite value so far (−∞ while there are fewer). The
     // compare-selects are exactly `vmaxpd` and `vminpd`, so with AVX2 a slot is two instructions.
+    // Validity is a comparison of the value itself (NaN and ∞ fail `<= MAX`), so every test is
+    // one vector compare, with no mask to widen from bytes.
     debug_assert!(
         dropped.iter().all(|&d| d <= T),
         "more dropped than the lists hold"
     );
     let mut top = [[f64::NEG_INFINITY; L]; T];
-    let mut finite = *valid;
     let (mut count, mut zeros) = ([0usize; L], [0usize; L]);
-    for (ok, v) in finite.iter_mut().zip(values) {
+    for v in values {
         for l in 0..L {
-            ok[l] &= v[l] <= f64::MAX;
-            count[l] += usize::from(ok[l]);
-            zeros[l] += usize::from(ok[l] & (v[l] == 0.0));
+            count[l] += usize::from(v[l] <= f64::MAX);
+            zeros[l] += usize::from(v[l] == 0.0);
         }
     }
     // Values are ≥ 0, so where the kept ones are all zeros the mean is 0: the common case of a
@@ -92,11 +92,14 @@ pub(crate) fn lanes<const L: usize, const N: usize, const T: usize>(
     if (0..L).all(|l| zeros[l] + dropped[l] >= count[l]) {
         return [0.0; L];
     }
-    let valid = &finite;
-    for (v, ok) in values.iter().zip(valid) {
+    for v in values {
         let mut carry = [f64::NEG_INFINITY; L];
         for l in 0..L {
-            carry[l] = if ok[l] { v[l] } else { f64::NEG_INFINITY };
+            carry[l] = if v[l] <= f64::MAX {
+                v[l]
+            } else {
+                f64::NEG_INFINITY
+            };
         }
         for slot in &mut top {
             for l in 0..L {
@@ -115,11 +118,12 @@ pub(crate) fn lanes<const L: usize, const N: usize, const T: usize>(
     }
     let mut sum = [0.0f64; L];
     let mut at_or_above = [0usize; L];
-    for (v, ok) in values.iter().zip(valid) {
+    for v in values {
         for l in 0..L {
-            let below = ok[l] & (v[l] < cut[l]);
+            // NaN is neither below nor at or above; ∞ is never below the cut.
+            let below = v[l] < cut[l];
             sum[l] += if below { v[l] } else { 0.0 };
-            at_or_above[l] += usize::from(ok[l] & (v[l] >= cut[l]));
+            at_or_above[l] += usize::from((v[l] >= cut[l]) & (v[l] <= f64::MAX));
         }
     }
     let mut mean = [0.0; L];
@@ -135,6 +139,17 @@ pub(crate) fn lanes<const L: usize, const N: usize, const T: usize>(
         };
     }
     mean
+}
+
+/// What a caller adds to a cell's value for [`lanes`]: 0 keeps it, NaN leaves it out (the sum is
+/// the value itself, bit for bit, or NaN).
+#[inline(always)]
+pub(crate) fn valid_or_nan(valid: bool) -> f64 {
+    if valid {
+        0.0
+    } else {
+        f64::NAN
+    }
 }
 
 #[cfg(test)]
@@ -189,7 +204,10 @@ pub(crate) mod tests {
             let counts: [usize; 4] = std::array::from_fn(|l| lane_values(l).len());
             let dropped: [usize; 4] =
                 std::array::from_fn(|l| (trial / 2 + l) % (T + 1).min(counts[l]));
-            let got = lanes::<4, N, T>(&values, &valid, dropped);
+            let marked: [[f64; 4]; N] = std::array::from_fn(|p| {
+                std::array::from_fn(|l| values[p][l] + valid_or_nan(valid[p][l]))
+            });
+            let got = lanes::<4, N, T>(&marked, dropped);
             for l in 0..4 {
                 let want = sorted_mean(&lane_values(l), counts[l] - dropped[l]);
                 assert!(
@@ -200,11 +218,8 @@ pub(crate) mod tests {
                     got[l]
                 );
                 // A lane alone gives the same bits as beside others.
-                let alone = lanes::<1, N, T>(
-                    &std::array::from_fn(|p| [values[p][l]]),
-                    &std::array::from_fn(|p| [valid[p][l]]),
-                    [dropped[l]],
-                );
+                let alone =
+                    lanes::<1, N, T>(&std::array::from_fn(|p| [marked[p][l]]), [dropped[l]]);
                 assert_eq!(alone[0].to_bits(), got[l].to_bits());
             }
         }
@@ -213,12 +228,18 @@ pub(crate) mod tests {
     #[test]
     fn values_that_are_not_finite_are_left_out() {
         let values = [[1.0], [f64::NAN], [3.0], [f64::INFINITY], [2.0]];
-        let valid = [[true]; 5];
-        assert_eq!(lanes::<1, 5, 2>(&values, &valid, [1]), [1.5]);
+        assert_eq!(lanes::<1, 5, 2>(&values, [1]), [1.5]);
         // Everything left out, or nothing valid: 0, not NaN.
-        assert_eq!(lanes::<1, 5, 2>(&values, &valid, [2]), [1.0]);
-        assert_eq!(lanes::<1, 5, 2>(&values, &[[false]; 5], [0]), [0.0]);
-        assert_eq!(lanes::<1, 1, 2>(&[[f64::NAN]], &[[true]], [0]), [0.0]);
+        assert_eq!(lanes::<1, 5, 2>(&values, [2]), [1.0]);
+        assert_eq!(lanes::<1, 5, 2>(&[[f64::NAN]; 5], [0]), [0.0]);
+        assert_eq!(lanes::<1, 1, 2>(&[[f64::NAN]], [0]), [0.0]);
+        // A value marked not valid is left out, whatever it was; a valid one is itself.
+        assert!((5.0 + valid_or_nan(false)).is_nan());
+        assert_eq!((5.0 + valid_or_nan(true)).to_bits(), 5.0f64.to_bits());
+        assert_eq!(
+            lanes::<1, 3, 1>(&[[4.0 + valid_or_nan(false)], [1.0], [2.0]], [0]),
+            [1.5]
+        );
     }
 
     #[test]
