@@ -17,13 +17,14 @@ use std::ops::Range;
 use rayon::prelude::*;
 
 use crate::fastmath::exp_neg_row;
-use crate::features::{distance_row, FeaturePlanes, Features};
+use crate::features::{distance_row, FeaturePlanes};
 use crate::image::Image;
 use crate::simd::{row_kernel, Kernel};
 
-/// The features of image rows `rows`, as [`Features::build_rows`] makes them: a pass asks for one
-/// band (plus halo) at a time, so the image's features (64 bytes a pixel) never exist at once.
-pub type Bands<'a> = dyn Fn(Range<usize>) -> Features + Sync + 'a;
+/// The features of image rows `rows` as planes padded by `pad` columns, and their depth weight, as
+/// [`crate::features::Features::planes_of_rows`] makes them: a pass asks for one band (plus halo)
+/// at a time, so the image's features (56 bytes a pixel) never exist at once.
+pub type Bands<'a> = dyn Fn(Range<usize>, usize) -> (FeaturePlanes, f32) + Sync + 'a;
 
 /// The B3-spline taps of one axis (sum 1).
 pub const TAPS: [f32; 5] = [1.0 / 16.0, 0.25, 0.375, 0.25, 1.0 / 16.0];
@@ -79,9 +80,7 @@ pub fn pass_with(
             // Padded so every run is computed in whole groups of 8 (the extra results are dropped);
             // taps that leave the image are skipped, so no run reaches further than its width.
             let pad = reach.min(w) + 8;
-            let band_features = features(rows.clone());
-            let depth_weight = band_features.depth_weight();
-            let feats = band_features.planes(0..rows.len(), pad);
+            let (feats, depth_weight) = features(rows.clone(), pad);
             // The planes' row 0 is image row `first`; `cols` keeps image rows.
             let first = rows.start;
             // Colour (3 lanes) and the keep weight (lane 3: 0 on masked pixels, else 1).

@@ -229,51 +229,7 @@ impl Features {
         let h = rows.len();
         let base = rows.start * w;
         let n = w * h;
-        let mut effective = *weights;
-        let mut off = Vec::new();
-        for (i, buffer) in WEIGHT_BUFFER.iter().enumerate() {
-            if weights.as_array()[i] > 0.0 && buffer.is_some_and(|f| !features.contains(f)) {
-                effective.set(i, 0.0);
-                off.push(Weights::NAMES[i]);
-            }
-        }
-        let wt = effective;
-        let fetch = |feature: Feature, weight: f32| -> Result<Option<&Image>> {
-            if weight <= 0.0 {
-                return Ok(None);
-            }
-            let img = features.get(feature);
-            if let Some(img) = img {
-                if img.dims() != color.dims() {
-                    return Err(Error::buffer(
-                        feature.name(),
-                        "does not match the colour buffer's size",
-                    ));
-                }
-            }
-            Ok(img)
-        };
-        // (buffer, first lane, per-channel scale) of every feature in use.
-        let mut packs: Vec<(&Image, usize, Vec<f32>)> = Vec::new();
-        if let Some(a) = fetch(Feature::Albedo, wt.albedo)? {
-            packs.push((a, 3, vec![wt.albedo; 3]));
-        }
-        if let Some(nm) = fetch(Feature::Normal, wt.normal)? {
-            packs.push((nm, 6, vec![wt.normal.sqrt() * 0.5; 3]));
-        }
-        let material = wt.diffuse.max(wt.reflective).max(wt.refractive);
-        if let Some(m) = fetch(Feature::Material, material)? {
-            packs.push((m, 9, vec![wt.diffuse, wt.reflective, wt.refractive]));
-        }
-        if let Some(sh) = fetch(Feature::Shadow, wt.shadow)? {
-            packs.push((sh, 12, vec![wt.shadow]));
-        }
-        let material = packs
-            .iter()
-            .any(|&(_, lane, _)| MATERIAL_LANES.contains(&lane));
-        if let Some(z) = fetch(Feature::Depth, wt.depth)? {
-            packs.push((z, 13, vec![1.0]));
-        }
+        let packing = Packing::new(color, features, weights, tone, exposure, color_scale)?;
         let mut records = vec![[0.0f32; FEATURE_LANES]; n];
         // Every record depends on its own pixel only: fill them in parallel chunks.
         const CHUNK: usize = 4096;
@@ -283,12 +239,10 @@ impl Features {
             .for_each(|(chunk, records)| {
                 let first = base + chunk * CHUNK;
                 for (i, r) in records.iter_mut().enumerate() {
-                    let c = color.pixel(first + i);
-                    let scale = color_scale.map_or(1.0, |s| s[first + i]);
-                    for k in 0..3 {
-                        r[k] = wt.color * scale * tone.apply(exposure * c[k]);
+                    for (k, v) in r[..3].iter_mut().enumerate() {
+                        *v = packing.color(first + i, k);
                     }
-                    for (img, lane, scales) in &packs {
+                    for (img, lane, scales) in &packing.packs {
                         for (k, (&v, &scale)) in img.pixel(first + i).iter().zip(scales).enumerate()
                         {
                             r[lane + k] = scale * v;
@@ -301,11 +255,63 @@ impl Features {
                 width: w,
                 height: h,
                 records,
-                depth_weight: wt.depth,
-                material,
+                depth_weight: packing.weights.depth,
+                material: packing.material,
             },
-            off,
+            packing.off,
         ))
+    }
+
+    /// [`Features::build_rows_scaled`]`(…, rows)`'s [`Features::planes`]`(0..rows.len(), pad)`, bit for
+    /// bit, and its depth weight, built straight from the buffers without the records: for a filter
+    /// that reads only planes, half the copying.
+    #[allow(clippy::too_many_arguments)]
+    pub fn planes_of_rows(
+        color: &Image,
+        features: &FeatureSet,
+        weights: &Weights,
+        tone: Tone,
+        exposure: f32,
+        color_scale: Option<&[f32]>,
+        rows: std::ops::Range<usize>,
+        pad: usize,
+    ) -> Result<(FeaturePlanes, f32)> {
+        let packing = Packing::new(color, features, weights, tone, exposure, color_scale)?;
+        let w = color.width();
+        let stride = w + 2 * pad;
+        let plane_len = rows.len() * stride;
+        let mut data = vec![0.0f32; USED_LANES * plane_len];
+        // Lane by lane, row by row: each loop reads one buffer with a fixed stride and writes one
+        // contiguous run.
+        for (r, y) in rows.clone().enumerate() {
+            let at = r * stride + pad;
+            for k in 0..3 {
+                let out = &mut data[k * plane_len + at..][..w];
+                for (x, o) in out.iter_mut().enumerate() {
+                    *o = packing.color(y * w + x, k);
+                }
+            }
+            for (img, lane, scales) in &packing.packs {
+                let c = img.channels();
+                let src = &img.data()[y * w * c..(y + 1) * w * c];
+                for (k, &scale) in scales.iter().enumerate().take(c) {
+                    let out = &mut data[(lane + k) * plane_len + at..][..w];
+                    for (o, px) in out.iter_mut().zip(src.chunks_exact(c)) {
+                        *o = scale * px[k];
+                    }
+                }
+            }
+        }
+        // Row 0 is image row `rows.start`, as in the band's own records.
+        let planes = FeaturePlanes {
+            first_row: 0,
+            pad,
+            stride,
+            plane_len,
+            data,
+            material: packing.material,
+        };
+        Ok((planes, packing.weights.depth))
     }
 
     pub fn width(&self) -> usize {
@@ -343,6 +349,96 @@ impl Features {
     #[inline]
     pub fn distance(&self, i: usize, j: usize) -> f32 {
         distance(&self.records[i], &self.records[j], self.depth_weight)
+    }
+}
+
+/// How the buffers become record lanes: the weights with those of missing buffers set to 0, and
+/// every feature in use with its first lane and per-channel scale. Shared by the records and the
+/// planes built without them, so both hold the same bits.
+struct Packing<'a> {
+    color: &'a Image,
+    weights: Weights,
+    tone: Tone,
+    exposure: f32,
+    color_scale: Option<&'a [f32]>,
+    /// (buffer, first lane, per-channel scale).
+    packs: Vec<(&'a Image, usize, Vec<f32>)>,
+    /// Whether a material or shadow lane is in use.
+    material: bool,
+    /// Names of the features switched off because their buffer is missing.
+    off: Vec<&'static str>,
+}
+
+impl<'a> Packing<'a> {
+    fn new(
+        color: &'a Image,
+        features: &'a FeatureSet,
+        weights: &Weights,
+        tone: Tone,
+        exposure: f32,
+        color_scale: Option<&'a [f32]>,
+    ) -> Result<Self> {
+        let mut effective = *weights;
+        let mut off = Vec::new();
+        for (i, buffer) in WEIGHT_BUFFER.iter().enumerate() {
+            if weights.as_array()[i] > 0.0 && buffer.is_some_and(|f| !features.contains(f)) {
+                effective.set(i, 0.0);
+                off.push(Weights::NAMES[i]);
+            }
+        }
+        let wt = effective;
+        let fetch = |feature: Feature, weight: f32| -> Result<Option<&'a Image>> {
+            if weight <= 0.0 {
+                return Ok(None);
+            }
+            let img = features.get(feature);
+            if let Some(img) = img {
+                if img.dims() != color.dims() {
+                    return Err(Error::buffer(
+                        feature.name(),
+                        "does not match the colour buffer's size",
+                    ));
+                }
+            }
+            Ok(img)
+        };
+        let mut packs: Vec<(&Image, usize, Vec<f32>)> = Vec::new();
+        if let Some(a) = fetch(Feature::Albedo, wt.albedo)? {
+            packs.push((a, 3, vec![wt.albedo; 3]));
+        }
+        if let Some(nm) = fetch(Feature::Normal, wt.normal)? {
+            packs.push((nm, 6, vec![wt.normal.sqrt() * 0.5; 3]));
+        }
+        let material = wt.diffuse.max(wt.reflective).max(wt.refractive);
+        if let Some(m) = fetch(Feature::Material, material)? {
+            packs.push((m, 9, vec![wt.diffuse, wt.reflective, wt.refractive]));
+        }
+        if let Some(sh) = fetch(Feature::Shadow, wt.shadow)? {
+            packs.push((sh, 12, vec![wt.shadow]));
+        }
+        let material = packs
+            .iter()
+            .any(|&(_, lane, _)| MATERIAL_LANES.contains(&lane));
+        if let Some(z) = fetch(Feature::Depth, wt.depth)? {
+            packs.push((z, 13, vec![1.0]));
+        }
+        Ok(Packing {
+            color,
+            weights: wt,
+            tone,
+            exposure,
+            color_scale,
+            packs,
+            material,
+            off,
+        })
+    }
+
+    /// Colour lane `k` of pixel `i` (an image index).
+    #[inline(always)]
+    fn color(&self, i: usize, k: usize) -> f32 {
+        let scale = self.color_scale.map_or(1.0, |s| s[i]);
+        self.weights.color * scale * self.tone.apply(self.exposure * self.color.pixel(i)[k])
     }
 }
 
@@ -584,6 +680,15 @@ mod tests {
     /// Features of a `w`×`h` render with random colour, albedo, normal and depth, and material
     /// and shadow buffers when `material`.
     fn random_features(w: usize, h: usize, material: bool, seed: u64) -> Features {
+        let (color, b) = random_set(w, h, material, seed);
+        let wts = Weights::default();
+        Features::build(&color, b.features(), &wts, Tone::Reinhard, 1.0)
+            .unwrap()
+            .0
+    }
+
+    /// A colour buffer and a set of random albedo, normal and depth (and material and shadow).
+    fn random_set(w: usize, h: usize, material: bool, seed: u64) -> (Image, Buffers) {
         let mut next = crate::trim::tests::xorshift(seed);
         let mut random = |c: usize| {
             let v = (0..w * h * c).map(|_| (next() >> 40) as f32 / (1u64 << 24) as f32);
@@ -597,10 +702,54 @@ mod tests {
         for (name, c) in names {
             b.insert(name, random(c)).unwrap();
         }
-        let wts = Weights::default();
-        Features::build(&color, b.features(), &wts, Tone::Reinhard, 1.0)
-            .unwrap()
-            .0
+        (color, b)
+    }
+
+    #[test]
+    fn planes_built_without_records_hold_the_records_bits() {
+        let (w, h) = (13, 9);
+        let scale: Vec<f32> = (0..w * h).map(|i| 0.5 + (i % 5) as f32 * 0.25).collect();
+        let wts = Weights {
+            reflective: 0.7,
+            ..Weights::default()
+        };
+        for material in [false, true] {
+            let (color, b) = random_set(w, h, material, 11);
+            for scale in [None, Some(scale.as_slice())] {
+                for (rows, pad) in [(0..h, 0), (2..7, 3), (8..9, 1)] {
+                    let (records, _) = Features::build_rows_scaled(
+                        &color,
+                        b.features(),
+                        &wts,
+                        Tone::Reinhard,
+                        1.5,
+                        scale,
+                        rows.clone(),
+                    )
+                    .unwrap();
+                    let want = records.planes(0..rows.len(), pad);
+                    let (got, depth_weight) = Features::planes_of_rows(
+                        &color,
+                        b.features(),
+                        &wts,
+                        Tone::Reinhard,
+                        1.5,
+                        scale,
+                        rows.clone(),
+                        pad,
+                    )
+                    .unwrap();
+                    let bits = |p: &FeaturePlanes| p.data.iter().map(|v| v.to_bits()).collect();
+                    let bits: (Vec<u32>, Vec<u32>) = (bits(&got), bits(&want));
+                    assert!(bits.0 == bits.1, "material {material}, rows {rows:?}");
+                    assert_eq!(
+                        (got.first_row, got.stride, got.plane_len, got.material),
+                        (want.first_row, want.stride, want.plane_len, want.material)
+                    );
+                    assert_eq!(depth_weight.to_bits(), records.depth_weight().to_bits());
+                }
+            }
+        }
     }
 
     #[test]

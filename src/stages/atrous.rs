@@ -192,8 +192,8 @@ impl Stage for AtrousStage {
         for k in 0..p.iterations {
             // The colour feature is read from each pass's input, which gets cleaner every pass.
             let current = &color;
-            let bands = |rows| {
-                Features::build_rows_scaled(
+            let bands = |rows, pad| {
+                Features::planes_of_rows(
                     current,
                     buffers.features(),
                     &p.weights,
@@ -201,9 +201,9 @@ impl Stage for AtrousStage {
                     p.exposure,
                     scales.as_deref(),
                     rows,
+                    pad,
                 )
                 .expect("buffer sizes were checked above")
-                .0
             };
             color = atrous::pass(&color, &bands, mask.as_deref(), 1 << k, sigma);
         }
