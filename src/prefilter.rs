@@ -544,31 +544,11 @@ fn write_pixel(kind: Kind, mut v: [f64; 3], px: &mut [f32]) {
 /// a patch row, then the rows), so the result is the same bits.
 #[inline(always)]
 fn filter_sparse(nl: &NlMeans, y0: usize, y1: usize, rows: &mut [f32]) {
-    let ((w, h, c), (r, f), k2) = (nl.dims, (nl.r, nl.f), nl.k2);
+    let ((w, h, c), (r, f)) = (nl.dims, (nl.r, nl.f));
     let (known, active, kind) = (&nl.known, &nl.active, nl.kind);
-    let edge = &nl.planes;
-    let (chans, var, eps) = (&edge.planes[..c], &edge.planes[c], &edge.planes[c + 1]);
+    let chans = &nl.planes.planes[..c];
     let terms = ((2 * f + 1) * (2 * f + 1)) as f64 * c as f64;
-    let side = 2 * f as usize + 1;
-    // One patch row's sum of terms: the cells a.. and b.. of both patches, in column order.
-    let across = |a: usize, b: usize| {
-        let mut t = [0.0f64; 2 * MAX_PATCH + 1];
-        let t = &mut t[..side];
-        for ch in chans {
-            for ((t, &u), &v) in t.iter_mut().zip(&ch[a..a + side]).zip(&ch[b..b + side]) {
-                let d = u - v;
-                *t += d * d;
-            }
-        }
-        let (va, vb, ea) = (&var[a..a + side], &var[b..b + side], &eps[a..a + side]);
-        let mut sum = -0.0f64;
-        for (((t, &va), &vb), &ea) in t.iter().zip(va).zip(vb).zip(ea) {
-            let expected = va + if vb < va { vb } else { va };
-            let scale = ea + k2 * (va + vb);
-            sum += (t - c as f64 * expected) / scale;
-        }
-        sum
-    };
+    let offsets = (2 * r + 1) as usize;
     for y in y0..y1 {
         for x in 0..w {
             if !active[y * w + x] {
@@ -584,18 +564,22 @@ fn filter_sparse(nl: &NlMeans, y0: usize, y1: usize, rows: &mut [f32]) {
                 if ny < 0 || ny >= h as isize {
                     continue;
                 }
-                for ox in -r..=r {
+                // The distances of the whole row of offsets, `LANES` side by side (each lane's
+                // sums in its own fixed order); an offset whose partner is outside the image or
+                // unknown reads the edge margin and is then left out.
+                let mut dist = [0.0f64; 2 * MAX_RADIUS + 1];
+                trim::by_lanes!(
+                    &mut dist[..offsets],
+                    |i| patch_distances::<LANES>(nl, x, y, (i as isize - r, oy)),
+                    |i| patch_distances::<1>(nl, x, y, (i as isize - r, oy))[0],
+                );
+                for (ox, &dist) in (-r..=r).zip(&dist) {
                     let nx = x as isize + ox;
                     if nx < 0 || nx >= w as isize || !known[ny as usize * w + nx as usize] {
                         continue;
                     }
-                    let mut dist = -0.0f64;
-                    for dy in -f..=f {
-                        let (px, py) = (x as isize - f, y as isize + dy);
-                        dist += across(edge.index(px, py), edge.index(px + ox, py + oy));
-                    }
                     weight[n] = -(dist / terms).max(0.0) as f32;
-                    partners[n] = edge.index(nx, ny);
+                    partners[n] = nl.planes.index(nx, ny);
                     n += 1;
                 }
             }
@@ -614,6 +598,52 @@ fn filter_sparse(nl: &NlMeans, y0: usize, y1: usize, rows: &mut [f32]) {
             write_pixel(kind, v, &mut rows[((y - y0) * w + x) * c..][..c]);
         }
     }
+}
+
+/// The patch distances (before division by the number of terms) from pixel (x, y) to the pixels
+/// at offsets (ox0 + l, oy), l < L, |ox0 + l| ≤ r: per lane, per patch row, the channels' squared
+/// differences of each column, less the expected noise and over its scale, summed over the columns
+/// in order; the rows' sums added in order. The offset-wise band filter sums the same terms in the
+/// same order, so both give the same bits; with lanes over the offsets, the divisions run 4 at once.
+#[inline(always)]
+fn patch_distances<const L: usize>(
+    nl: &NlMeans,
+    x: usize,
+    y: usize,
+    (ox0, oy): (isize, isize),
+) -> [f64; L] {
+    let (c, f, k2) = (nl.dims.2, nl.f, nl.k2);
+    let edge = &nl.planes;
+    let (chans, var, eps) = (&edge.planes[..c], &edge.planes[c], &edge.planes[c + 1]);
+    let side = 2 * f as usize + 1;
+    let mut dist = [-0.0f64; L];
+    for dy in -f..=f {
+        let (px, py) = (x as isize - f, y as isize + dy);
+        let (a, b) = (edge.index(px, py), edge.index(px + ox0, py + oy));
+        let mut t = [[0.0f64; L]; 2 * MAX_PATCH + 1];
+        for ch in chans {
+            for (col, t) in t[..side].iter_mut().enumerate() {
+                let (u, v) = (ch[a + col], &ch[b + col..b + col + L]);
+                for l in 0..L {
+                    let d = u - v[l];
+                    t[l] += d * d;
+                }
+            }
+        }
+        let mut sum = [-0.0f64; L];
+        for (col, t) in t[..side].iter().enumerate() {
+            let (va, ea, vb) = (var[a + col], eps[a + col], &var[b + col..b + col + L]);
+            for l in 0..L {
+                let expected = va + if vb[l] < va { vb[l] } else { va };
+                let scale = ea + k2 * (va + vb[l]);
+                sum[l] += (t[l] - c as f64 * expected) / scale;
+            }
+        }
+        for l in 0..L {
+            dist[l] += sum[l];
+        }
+    }
+    dist
 }
 
 #[cfg(test)]
