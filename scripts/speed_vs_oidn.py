@@ -10,8 +10,10 @@ one run, median of 5. This script:
        * OIDN (pyoidn; the RT filter, hdr, albedo + normal, CPU device, set up exactly as
          scripts/compare_denoisers.py does): "filter" is oidnExecuteFilter alone on a committed filter,
          "process" a fresh python3 that imports pyoidn, reads the EXRs, denoises once and writes the EXR;
-       * gsid `balanced` and `full`: the whole `gsid denoise SET --pipeline NAME -o OUT.exr --quiet`
-         process, default threads, on a folder that links only color/albedo/normal/depth;
+       * gsid `balanced` and `full`: the whole `gsid denoise SET --pipeline NAME -o OUT.exr --quiet --json`
+         process, default threads, on a folder that links only color/albedo/normal/depth ("process"),
+         and within it the pipeline alone ("filter": its `seconds.pipeline`, without starting the process
+         and reading and writing the EXRs), the counterpart of OIDN's "filter";
      each the median of `--runs` (default 5), in rounds: one OIDN filter execution and one run of every
      gsid pipeline and binary per round, so all see the same drift of a shared machine's load;
   3. prints a markdown table with every time's ratio to OIDN's filter and to OIDN's process time, under
@@ -99,11 +101,25 @@ def oidn_process(setdir, out, runs):
     return statistics.median(times), times
 
 
+def gsid_run(gsid, setdir, pipeline, out_path):
+    """One `gsid denoise` process: its wall time, and its pipeline's own time from its --json report."""
+    cmd = [str(gsid), "denoise", str(setdir), "--pipeline", pipeline, "-o", str(out_path), "--quiet", "--json"]
+    start = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+    wall = time.perf_counter() - start
+    if proc.returncode != 0:
+        fail(f"{' '.join(cmd)}: {proc.stderr.strip()}", proc.returncode)
+    try:
+        return wall, float(json.loads(proc.stdout)["seconds"]["pipeline"])
+    except (ValueError, KeyError, TypeError) as e:
+        fail(f"{' '.join(cmd)}: no seconds.pipeline in its --json report ({e})")
+
+
 def interleaved(device, setdir, linked, binaries, pipelines, tmp, runs):
     """`runs` rounds of one OIDN filter execution and one run of every gsid pipeline and binary, in
     turn: on a shared machine the load drifts within a run, and rounds make every method see the same
-    drift (timing OIDN's runs first and gsid's after moved their ratio by ±0.2). Returns OIDN's times
-    and gsid's per (pipeline, binary)."""
+    drift (timing OIDN's runs first and gsid's after moved their ratio by ±0.2). Returns OIDN's times,
+    and gsid's process and pipeline times per (pipeline, binary)."""
     import numpy as np
 
     color, albedo, normal = cd.load_set(setdir)
@@ -111,6 +127,7 @@ def interleaved(device, setdir, linked, binaries, pipelines, tmp, runs):
     flt = cd.oidn_filter(device, color, albedo, normal, output)
     cd.oidn_check(device, f"filter setup for {setdir}")
     oidn_times, gsid_times = [], {(name, g): [] for name in pipelines for g in binaries}
+    filter_times = {key: [] for key in gsid_times}
     try:
         for r in range(runs):
             cd.note(f"round {r + 1} of {runs}: OIDN filter, then gsid {' '.join(pipelines)} ...")
@@ -120,11 +137,13 @@ def interleaved(device, setdir, linked, binaries, pipelines, tmp, runs):
             cd.oidn_check(device, f"filter execution on {setdir}")
             for name in pipelines:
                 for g in binaries:
-                    gsid_times[(name, g)] += cd.gsid_denoise(g, linked, name, tmp / f"{name}.exr", 1)[1]
+                    wall, filtering = gsid_run(g, linked, name, tmp / f"{name}.exr")
+                    gsid_times[(name, g)].append(wall)
+                    filter_times[(name, g)].append(filtering)
     finally:
         flt.release()
     cd.write_rgb(tmp / "oidn.exr", output)
-    return oidn_times, gsid_times
+    return oidn_times, gsid_times, filter_times
 
 
 def main(argv=None):
@@ -177,7 +196,8 @@ def main(argv=None):
     with tempfile.TemporaryDirectory(prefix="speed_vs_oidn.") as tmp:
         tmp = Path(tmp)
         linked = cd.linked_set(setdir, cd.GSID_BUFFERS, tmp / "set")
-        oidn_times, gsid_times = interleaved(device, setdir, linked, binaries, args.pipelines, tmp, args.runs)
+        oidn_times, gsid_times, filter_times = interleaved(device, setdir, linked, binaries, args.pipelines, tmp,
+                                                           args.runs)
         device.release()
         rows["OIDN filter (execute only)"] = (statistics.median(oidn_times), oidn_times)
         cd.note("OIDN process ...")
@@ -187,6 +207,8 @@ def main(argv=None):
                 label = f" {g}" if len(binaries) > 1 else ""
                 times = gsid_times[(name, g)]
                 rows[f"gsid `{name}` (process){label}"] = (statistics.median(times), times)
+                times = filter_times[(name, g)]
+                rows[f"gsid `{name}` (filter: pipeline only){label}"] = (statistics.median(times), times)
     header["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
 
     filt = rows["OIDN filter (execute only)"][0]
