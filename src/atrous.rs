@@ -22,7 +22,7 @@ use crate::image::Image;
 use crate::simd::{row_kernel, Kernel};
 
 /// The features of image rows `rows` as planes padded by `pad` columns, and their depth weight, as
-/// [`crate::features::Features::planes_of_rows`] makes them: a pass asks for one band (plus halo)
+/// [`crate::features::Recipe::planes`] makes them: a pass asks for one band (plus halo)
 /// at a time, so the image's features (56 bytes a pixel) never exist at once.
 pub type Bands<'a> = dyn Fn(Range<usize>, usize) -> (FeaturePlanes, f32) + Sync + 'a;
 

@@ -209,109 +209,8 @@ impl Features {
         exposure: f32,
         rows: std::ops::Range<usize>,
     ) -> Result<(Features, Vec<&'static str>)> {
-        Features::build_rows_scaled(color, features, weights, tone, exposure, None, rows)
-    }
-
-    /// [`Features::build_rows`] with the tone-mapped colour of every pixel multiplied by its
-    /// `color_scale` (one factor per image pixel): colour differences in units of the local noise
-    /// (`crate::noise::color_scales`).
-    #[allow(clippy::too_many_arguments)]
-    pub fn build_rows_scaled(
-        color: &Image,
-        features: &FeatureSet,
-        weights: &Weights,
-        tone: Tone,
-        exposure: f32,
-        color_scale: Option<&[f32]>,
-        rows: std::ops::Range<usize>,
-    ) -> Result<(Features, Vec<&'static str>)> {
-        let w = color.width();
-        let h = rows.len();
-        let base = rows.start * w;
-        let n = w * h;
-        let packing = Packing::new(color, features, weights, tone, exposure, color_scale)?;
-        let mut records = vec![[0.0f32; FEATURE_LANES]; n];
-        // Every record depends on its own pixel only: fill them in parallel chunks.
-        const CHUNK: usize = 4096;
-        records
-            .par_chunks_mut(CHUNK)
-            .enumerate()
-            .for_each(|(chunk, records)| {
-                let first = base + chunk * CHUNK;
-                for (i, r) in records.iter_mut().enumerate() {
-                    for (k, v) in r[..3].iter_mut().enumerate() {
-                        *v = packing.color(first + i, k);
-                    }
-                    for (img, lane, scales) in &packing.packs {
-                        for (k, (&v, &scale)) in img.pixel(first + i).iter().zip(scales).enumerate()
-                        {
-                            r[lane + k] = scale * v;
-                        }
-                    }
-                }
-            });
-        Ok((
-            Features {
-                width: w,
-                height: h,
-                records,
-                depth_weight: packing.weights.depth,
-                material: packing.material,
-            },
-            packing.off,
-        ))
-    }
-
-    /// [`Features::build_rows_scaled`]`(…, rows)`'s [`Features::planes`]`(0..rows.len(), pad)`, bit for
-    /// bit, and its depth weight, built straight from the buffers without the records: for a filter
-    /// that reads only planes, half the copying.
-    #[allow(clippy::too_many_arguments)]
-    pub fn planes_of_rows(
-        color: &Image,
-        features: &FeatureSet,
-        weights: &Weights,
-        tone: Tone,
-        exposure: f32,
-        color_scale: Option<&[f32]>,
-        rows: std::ops::Range<usize>,
-        pad: usize,
-    ) -> Result<(FeaturePlanes, f32)> {
-        let packing = Packing::new(color, features, weights, tone, exposure, color_scale)?;
-        let w = color.width();
-        let stride = w + 2 * pad;
-        let plane_len = rows.len() * stride;
-        let mut data = vec![0.0f32; USED_LANES * plane_len];
-        // Lane by lane, row by row: each loop reads one buffer with a fixed stride and writes one
-        // contiguous run.
-        for (r, y) in rows.clone().enumerate() {
-            let at = r * stride + pad;
-            for k in 0..3 {
-                let out = &mut data[k * plane_len + at..][..w];
-                for (x, o) in out.iter_mut().enumerate() {
-                    *o = packing.color(y * w + x, k);
-                }
-            }
-            for (img, lane, scales) in &packing.packs {
-                let c = img.channels();
-                let src = &img.data()[y * w * c..(y + 1) * w * c];
-                for (k, &scale) in scales.iter().enumerate().take(c) {
-                    let out = &mut data[(lane + k) * plane_len + at..][..w];
-                    for (o, px) in out.iter_mut().zip(src.chunks_exact(c)) {
-                        *o = scale * px[k];
-                    }
-                }
-            }
-        }
-        // Row 0 is image row `rows.start`, as in the band's own records.
-        let planes = FeaturePlanes {
-            first_row: 0,
-            pad,
-            stride,
-            plane_len,
-            data,
-            material: packing.material,
-        };
-        Ok((planes, packing.weights.depth))
+        let recipe = Recipe::new(color, features, weights, tone, exposure, None)?;
+        Ok((recipe.records(rows), recipe.off().to_vec()))
     }
 
     pub fn width(&self) -> usize {
@@ -352,10 +251,11 @@ impl Features {
     }
 }
 
-/// How the buffers become record lanes: the weights with those of missing buffers set to 0, and
-/// every feature in use with its first lane and per-channel scale. Shared by the records and the
-/// planes built without them, so both hold the same bits.
-struct Packing<'a> {
+/// How the buffers become feature lanes: the weights with those of missing buffers set to 0, and
+/// every feature in use with its first lane and per-channel scale. Made once per image; it builds
+/// the records of any band of rows ([`Recipe::records`]) or their planes straight from the buffers
+/// ([`Recipe::planes`]), the same bits either way.
+pub struct Recipe<'a> {
     color: &'a Image,
     weights: Weights,
     tone: Tone,
@@ -369,8 +269,11 @@ struct Packing<'a> {
     off: Vec<&'static str>,
 }
 
-impl<'a> Packing<'a> {
-    fn new(
+impl<'a> Recipe<'a> {
+    /// The recipe for `color` and the feature buffers `features`, weighted by `weights`, the
+    /// tone-mapped colour of every pixel multiplied by its `color_scale` when given (one factor per
+    /// image pixel: colour differences in units of the local noise, `crate::noise::color_scales`).
+    pub fn new(
         color: &'a Image,
         features: &'a FeatureSet,
         weights: &Weights,
@@ -422,7 +325,7 @@ impl<'a> Packing<'a> {
         if let Some(z) = fetch(Feature::Depth, wt.depth)? {
             packs.push((z, 13, vec![1.0]));
         }
-        Ok(Packing {
+        Ok(Recipe {
             color,
             weights: wt,
             tone,
@@ -432,6 +335,89 @@ impl<'a> Packing<'a> {
             material,
             off,
         })
+    }
+
+    /// Names of the weighted features switched off because their buffer is missing.
+    pub fn off(&self) -> &[&'static str] {
+        &self.off
+    }
+
+    /// The records of image rows `rows`: a [`Features`] `rows.len()` rows high whose row 0 is image
+    /// row `rows.start`. Lets a filter hold one band's features instead of the image's (64 bytes a
+    /// pixel).
+    pub fn records(&self, rows: std::ops::Range<usize>) -> Features {
+        let w = self.color.width();
+        let h = rows.len();
+        let base = rows.start * w;
+        let n = w * h;
+        let mut records = vec![[0.0f32; FEATURE_LANES]; n];
+        // Every record depends on its own pixel only: fill them in parallel chunks.
+        const CHUNK: usize = 4096;
+        records
+            .par_chunks_mut(CHUNK)
+            .enumerate()
+            .for_each(|(chunk, records)| {
+                let first = base + chunk * CHUNK;
+                for (i, r) in records.iter_mut().enumerate() {
+                    for (k, v) in r[..3].iter_mut().enumerate() {
+                        *v = self.color(first + i, k);
+                    }
+                    for (img, lane, scales) in &self.packs {
+                        for (k, (&v, &scale)) in img.pixel(first + i).iter().zip(scales).enumerate()
+                        {
+                            r[lane + k] = scale * v;
+                        }
+                    }
+                }
+            });
+        Features {
+            width: w,
+            height: h,
+            records,
+            depth_weight: self.weights.depth,
+            material: self.material,
+        }
+    }
+
+    /// [`Recipe::records`]`(rows)`'s [`Features::planes`]`(0..rows.len(), pad)`, bit for bit, and the
+    /// depth weight, built straight from the buffers without the records: for a filter that reads
+    /// only planes, half the copying.
+    pub fn planes(&self, rows: std::ops::Range<usize>, pad: usize) -> (FeaturePlanes, f32) {
+        let w = self.color.width();
+        let stride = w + 2 * pad;
+        let plane_len = rows.len() * stride;
+        let mut data = vec![0.0f32; USED_LANES * plane_len];
+        // Lane by lane, row by row: each loop reads one buffer with a fixed stride and writes one
+        // contiguous run.
+        for (r, y) in rows.clone().enumerate() {
+            let at = r * stride + pad;
+            for k in 0..3 {
+                let out = &mut data[k * plane_len + at..][..w];
+                for (x, o) in out.iter_mut().enumerate() {
+                    *o = self.color(y * w + x, k);
+                }
+            }
+            for (img, lane, scales) in &self.packs {
+                let c = img.channels();
+                let src = &img.data()[y * w * c..(y + 1) * w * c];
+                for (k, &scale) in scales.iter().enumerate().take(c) {
+                    let out = &mut data[(lane + k) * plane_len + at..][..w];
+                    for (o, px) in out.iter_mut().zip(src.chunks_exact(c)) {
+                        *o = scale * px[k];
+                    }
+                }
+            }
+        }
+        // Row 0 is image row `rows.start`, as in the band's own records.
+        let planes = FeaturePlanes {
+            first_row: 0,
+            pad,
+            stride,
+            plane_len,
+            data,
+            material: self.material,
+        };
+        (planes, self.weights.depth)
     }
 
     /// Colour lane `k` of pixel `i` (an image index).
@@ -717,28 +703,12 @@ mod tests {
             let (color, b) = random_set(w, h, material, 11);
             for scale in [None, Some(scale.as_slice())] {
                 for (rows, pad) in [(0..h, 0), (2..7, 3), (8..9, 1)] {
-                    let (records, _) = Features::build_rows_scaled(
-                        &color,
-                        b.features(),
-                        &wts,
-                        Tone::Reinhard,
-                        1.5,
-                        scale,
-                        rows.clone(),
-                    )
-                    .unwrap();
+                    let recipe =
+                        Recipe::new(&color, b.features(), &wts, Tone::Reinhard, 1.5, scale)
+                            .unwrap();
+                    let records = recipe.records(rows.clone());
                     let want = records.planes(0..rows.len(), pad);
-                    let (got, depth_weight) = Features::planes_of_rows(
-                        &color,
-                        b.features(),
-                        &wts,
-                        Tone::Reinhard,
-                        1.5,
-                        scale,
-                        rows.clone(),
-                        pad,
-                    )
-                    .unwrap();
+                    let (got, depth_weight) = recipe.planes(rows.clone(), pad);
                     let bits = |p: &FeaturePlanes| p.data.iter().map(|v| v.to_bits()).collect();
                     let bits: (Vec<u32>, Vec<u32>) = (bits(&got), bits(&want));
                     assert!(bits.0 == bits.1, "material {material}, rows {rows:?}");

@@ -3,9 +3,9 @@
 
 mod common;
 
-use common::{assert_set_refused, synthetic_set};
+use common::{assert_set_refused, default_features, synthetic_set};
 use gsid::atrous::pass_with;
-use gsid::features::{FeaturePlanes, Features, Tone, Weights};
+use gsid::features::{FeaturePlanes, Features, Recipe, Tone, Weights};
 use gsid::simd::Kernel;
 use gsid::{Buffers, Image};
 
@@ -18,33 +18,16 @@ fn features<'a>(
     color: &'a Image,
     set: &'a Buffers,
 ) -> impl Fn(std::ops::Range<usize>, usize) -> (FeaturePlanes, f32) + Sync + 'a {
-    move |rows, pad| {
-        Features::planes_of_rows(
-            color,
-            set.features(),
-            &Weights::default(),
-            Tone::Reinhard,
-            1.0,
-            None,
-            rows,
-            pad,
-        )
-        .unwrap()
-    }
-}
-
-/// The records of the whole image, which the textbook pass reads: the fast pass's planes are
-/// built without them and must hold the same bits.
-fn records(color: &Image, set: &Buffers) -> Features {
-    Features::build(
+    let recipe = Recipe::new(
         color,
         set.features(),
         &Weights::default(),
         Tone::Reinhard,
         1.0,
+        None,
     )
-    .unwrap()
-    .0
+    .unwrap();
+    move |rows, pad| recipe.planes(rows, pad)
 }
 
 /// Makes every feature but albedo and colour uniform: one flat plane facing +z, fully lit, depth 1.
@@ -70,7 +53,9 @@ fn both_kernels_any_thread_count_and_the_textbook_sum_give_the_same_bits() {
         let set = synthetic_set(w, h);
         let color = set.get("color").unwrap();
         let f = features(color, &set);
-        let whole = records(color, &set);
+        // The records, which the textbook pass reads: the fast pass's planes are built without
+        // them and must hold the same bits.
+        let whole = default_features(color, &set);
         let mask: Vec<bool> = (0..w * h).map(|i| i % 7 == 3).collect();
         for m in [None, Some(mask.as_slice())] {
             for step in [1, 2, 4, 8] {

@@ -2,24 +2,11 @@
 
 mod common;
 
-use common::synthetic_set;
+use common::{default_features, synthetic_set};
 use gsid::features::{Features, Tone, Weights};
 use gsid::walk::{self, Engine, FeatureSource, Kernel, WalkJob, WalkParams, WalkStats};
 use gsid::Image;
 use proptest::prelude::*;
-
-/// The features of `set` with the report's weights and the Reinhard tone curve.
-fn default_features(color: &Image, set: &gsid::Buffers) -> Features {
-    Features::build(
-        color,
-        set.features(),
-        &Weights::default(),
-        Tone::Reinhard,
-        1.0,
-    )
-    .unwrap()
-    .0
-}
 
 /// A rayon pool of `threads` threads.
 fn pool(threads: usize) -> rayon::ThreadPool {

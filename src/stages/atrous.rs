@@ -7,7 +7,7 @@ use super::{parse_params, read_mask, Context, Stage, StageIo};
 use crate::atrous;
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
-use crate::features::{Features, Tone, Weights};
+use crate::features::{Features, Recipe, Tone, Weights};
 use crate::render_set::Feature;
 
 /// Parameters of the `atrous` stage (keys of its table in a pipeline file).
@@ -192,19 +192,15 @@ impl Stage for AtrousStage {
         for k in 0..p.iterations {
             // The colour feature is read from each pass's input, which gets cleaner every pass.
             let current = &color;
-            let bands = |rows, pad| {
-                Features::planes_of_rows(
-                    current,
-                    buffers.features(),
-                    &p.weights,
-                    p.tone,
-                    p.exposure,
-                    scales.as_deref(),
-                    rows,
-                    pad,
-                )
-                .expect("buffer sizes were checked above")
-            };
+            let recipe = Recipe::new(
+                current,
+                buffers.features(),
+                &p.weights,
+                p.tone,
+                p.exposure,
+                scales.as_deref(),
+            )?;
+            let bands = |rows, pad| recipe.planes(rows, pad);
             color = atrous::pass(&color, &bands, mask.as_deref(), 1 << k, sigma);
         }
         if let Some(a) = albedo {

@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 use super::{parse_params, read_mask, Context, Stage, StageIo};
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
-use crate::features::{Features, Tone, Weights};
+use crate::features::{Features, Recipe, Tone, Weights};
 use crate::progress::Progress;
 use crate::walk::{self, FeatureSource, WalkJob, WalkParams};
 
@@ -197,18 +197,15 @@ pub fn run_gsid(
     let scales = params
         .scaling()
         .color_scales(buffers, color, params.exposure)?;
-    let features_for = |rows: std::ops::Range<usize>| {
-        Features::build_rows_scaled(
-            color,
-            buffers.features(),
-            &params.weights,
-            params.tone,
-            params.exposure,
-            scales.as_deref(),
-            rows,
-        )
-        .map(|(f, _)| f)
-    };
+    let recipe = Recipe::new(
+        color,
+        buffers.features(),
+        &params.weights,
+        params.tone,
+        params.exposure,
+        scales.as_deref(),
+    )?;
+    let features_for = |rows: std::ops::Range<usize>| Ok(recipe.records(rows));
     let mut walk_params = params.walk_params();
     walk_params.sigma =
         params

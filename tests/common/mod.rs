@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use gsid::features::{Features, Tone, Weights};
 use gsid::{io, Buffers, Image};
 
 pub const FIXTURE: &str = "fixtures/mitsuba-cornell";
@@ -143,4 +144,17 @@ pub fn files_in(dir: &Path) -> Vec<String> {
         .collect();
     v.sort();
     v
+}
+
+/// The features (records) of `set` with the report's weights and the Reinhard tone curve.
+pub fn default_features(color: &Image, set: &Buffers) -> Features {
+    Features::build(
+        color,
+        set.features(),
+        &Weights::default(),
+        Tone::Reinhard,
+        1.0,
+    )
+    .unwrap()
+    .0
 }
