@@ -359,9 +359,7 @@ impl<'a> Recipe<'a> {
             .for_each(|(chunk, records)| {
                 let first = base + chunk * CHUNK;
                 for (i, r) in records.iter_mut().enumerate() {
-                    for (k, v) in r[..3].iter_mut().enumerate() {
-                        *v = self.color(first + i, k);
-                    }
+                    r[..3].copy_from_slice(&self.color(first + i));
                     for (img, lane, scales) in &self.packs {
                         for (k, (&v, &scale)) in img.pixel(first + i).iter().zip(scales).enumerate()
                         {
@@ -387,14 +385,13 @@ impl<'a> Recipe<'a> {
         let stride = w + 2 * pad;
         let plane_len = rows.len() * stride;
         let mut data = vec![0.0f32; USED_LANES * plane_len];
-        // Lane by lane, row by row: each loop reads one buffer with a fixed stride and writes one
-        // contiguous run.
+        // Row by row: the colour pixel by pixel into its three lanes, then each buffer lane by lane,
+        // reading with a fixed stride and writing one contiguous run.
         for (r, y) in rows.clone().enumerate() {
             let at = r * stride + pad;
-            for k in 0..3 {
-                let out = &mut data[k * plane_len + at..][..w];
-                for (x, o) in out.iter_mut().enumerate() {
-                    *o = self.color(y * w + x, k);
+            for x in 0..w {
+                for (k, v) in self.color(y * w + x).into_iter().enumerate() {
+                    data[k * plane_len + at + x] = v;
                 }
             }
             for (img, lane, scales) in &self.packs {
@@ -420,11 +417,12 @@ impl<'a> Recipe<'a> {
         (planes, self.weights.depth)
     }
 
-    /// Colour lane `k` of pixel `i` (an image index).
+    /// The colour lanes of pixel `i` (an image index).
     #[inline(always)]
-    fn color(&self, i: usize, k: usize) -> f32 {
+    fn color(&self, i: usize) -> [f32; 3] {
         let scale = self.color_scale.map_or(1.0, |s| s[i]);
-        self.weights.color * scale * self.tone.apply(self.exposure * self.color.pixel(i)[k])
+        let c = self.color.pixel(i);
+        std::array::from_fn(|k| self.weights.color * scale * self.tone.apply(self.exposure * c[k]))
     }
 }
 
