@@ -31,8 +31,17 @@ pub const MAX_RADIUS: usize = 16;
 /// Output rows per parallel task; each task copies its rows plus the window's reach into planes.
 const BAND_ROWS: usize = 32;
 
+/// Columns of a band swept row by row before the next: the window's rows of every lane stay in
+/// the core's cache from one output row to the next.
+const TILE_COLUMNS: usize = 64;
+const _: () = assert!(TILE_COLUMNS.is_multiple_of(GROUP), "a tile holds whole groups");
+
 /// Pixels of a row whose window sums are formed together, side by side (one AVX2 register).
 const GROUP: usize = 8;
+
+/// Cells a window row's taps read for a group, at the largest radius: each lane's row is taken as
+/// one array of this length, so no tap's load needs its own bounds check.
+const ROW: usize = 2 * MAX_RADIUS + GROUP;
 
 /// Relative size of the fit's rounding error: a fit this close to the filtered value leaves it.
 const ROUNDING: f64 = 1e-5;
@@ -142,21 +151,23 @@ pub fn regress_with(kernel: Kernel, inputs: Inputs, p: &Params) -> Fit {
             let lanes: [&[f32]; LANES] = std::array::from_fn(|l| planes.lanes[l].as_slice());
             let (lanes, stride) = (&lanes, planes.stride);
             let mut sums = GroupSums::default();
-            for y in y0..y1 {
-                let at = y - y0;
-                for x0 in (0..w).step_by(GROUP) {
-                    let center = planes.offset(0, at, 0) + x0;
-                    let sums = &mut sums;
-                    row_kernel!(kernel, window_sums(lanes: &[&[f32]; LANES], center: usize, stride: usize, r: usize, inv_albedo: f32, cos: f32, sums: &mut GroupSums));
-                    sums.solve(
-                        p,
-                        &planes,
-                        inputs,
-                        (x0, y),
-                        GROUP.min(w - x0),
-                        &mut out[3 * w * at..3 * w * (at + 1)],
-                        &mut out_var[w * at..w * (at + 1)],
-                    );
+            for tile in (0..w).step_by(TILE_COLUMNS) {
+                for y in y0..y1 {
+                    let at = y - y0;
+                    for x0 in (tile..(tile + TILE_COLUMNS).min(w)).step_by(GROUP) {
+                        let center = planes.offset(0, at, 0) + x0;
+                        let sums = &mut sums;
+                        row_kernel!(kernel, window_sums(lanes: &[&[f32]; LANES], center: usize, stride: usize, r: usize, inv_albedo: f32, cos: f32, sums: &mut GroupSums));
+                        sums.solve(
+                            p,
+                            &planes,
+                            inputs,
+                            (x0, y),
+                            GROUP.min(w - x0),
+                            &mut out[3 * w * at..3 * w * (at + 1)],
+                            &mut out_var[w * at..w * (at + 1)],
+                        );
+                    }
                 }
             }
         });
@@ -179,7 +190,8 @@ impl Planes {
         let r = p.radius;
         let stride = w + 2 * r + 8;
         let rows = y1 - y0 + 2 * r;
-        let mut lanes = vec![vec![0.0f32; stride * rows]; LANES];
+        // Past the last row, room for a whole `ROW` read from any window row's first cell.
+        let mut lanes = vec![vec![0.0f32; stride * rows + ROW]; LANES];
         // A cell that takes no part matches no pixel's normal: its NaNs fail both tests of
         // `window_sums`, so the kernel needs no VALID factor.
         for lane in &mut lanes[N..=KNOWN] {
@@ -314,11 +326,13 @@ fn window_sums(
     let (inv, known_c) = (at(INV), at(KNOWN));
     *sums = GroupSums::default();
     let ri = r as isize;
+    // Taps in a window row; at most ROW − GROUP + 1, which the loads' bounds follow from.
+    let taps = (2 * r + 1).min(ROW - GROUP + 1);
     // One window row's tap weights, rewritten row by row (zeroed once here, not at every row).
     let mut e = [[0.0f32; GROUP]; 2 * MAX_RADIUS + 1];
     // The taps' u = dx / r, divided once here rather than at every tap of every row.
     let mut us = [0.0f32; 2 * MAX_RADIUS + 1];
-    for (j, u) in us[..2 * r + 1].iter_mut().enumerate() {
+    for (j, u) in us[..taps].iter_mut().enumerate() {
         *u = (j as isize - ri) as f32 / r as f32;
     }
     for dy in -ri..=ri {
@@ -327,11 +341,19 @@ fn window_sums(
         let mut c1 = [[0.0f32; GROUP]; 3];
         let mut m = [[0.0f32; GROUP]; 3];
         let row = (center as isize + dy * stride as isize - ri) as usize;
+        let span = |l: usize| -> &[f32; ROW] {
+            lanes[l][row..row + ROW]
+                .try_into()
+                .expect("planes padded by ROW")
+        };
+        let (f, a) = (
+            [span(F), span(F + 1), span(F + 2)],
+            [span(A), span(A + 1), span(A + 2)],
+        );
         // The weights of the whole window row first: they do not depend on each other, so their
         // chains of operations overlap.
-        for (j, e) in e[..2 * r + 1].iter_mut().enumerate() {
-            let ld = |l: usize| load(lanes[l], row + j);
-            let (fo, ao) = ([ld(F), ld(F + 1), ld(F + 2)], [ld(A), ld(A + 1), ld(A + 2)]);
+        for (j, e) in e[..taps].iter_mut().enumerate() {
+            let (fo, ao) = (f.map(|s| load(s, j)), a.map(|s| load(s, j)));
             for l in 0..GROUP {
                 let df = [
                     fc[0][l] - fo[0][l],
@@ -348,12 +370,17 @@ fn window_sums(
                 e[l] = falloff(f2 * inv[l] + a2 * inv_albedo);
             }
         }
-        for (j, (e, &u)) in e[..2 * r + 1].iter().zip(&us).enumerate() {
-            let ld = |l: usize| load(lanes[l], row + j);
-            let no = [ld(N), ld(N + 1), ld(N + 2)];
-            let known_o = ld(KNOWN);
-            let color = [ld(C), ld(C + 1), ld(C + 2)];
-            let var = ld(V);
+        let (n, known, c, vr) = (
+            [span(N), span(N + 1), span(N + 2)],
+            span(KNOWN),
+            [span(C), span(C + 1), span(C + 2)],
+            span(V),
+        );
+        for (j, (e, &u)) in e[..taps].iter().zip(&us).enumerate() {
+            let no = n.map(|s| load(s, j));
+            let known_o = load(known, j);
+            let color = c.map(|s| load(s, j));
+            let var = load(vr, j);
             for l in 0..GROUP {
                 let dot = nc[0][l] * no[0][l] + nc[1][l] * no[1][l] + nc[2][l] * no[2][l];
                 // `|` on bools, not `||`: no branch, so the lanes stay in one register. Two
@@ -718,11 +745,21 @@ mod reference_tests {
             albedo: Some(&albedo),
             normal: Some(&normal),
         };
+        // Radius 3, and the largest, whose window is wider than the image: every window row's
+        // reads then run to the end of the band's padded planes.
+        for radius in [3, MAX_RADIUS] {
+            for kernel in [Kernel::Scalar, Kernel::detect()] {
+                check_against_direct(inputs, radius, kernel);
+            }
+        }
+    }
+
+    fn check_against_direct(inputs: Inputs, radius: usize, kernel: Kernel) {
         let p = Params {
-            radius: 3,
+            radius,
             ..Params::default()
         };
-        let fit = regress_with(Kernel::Scalar, inputs, &p);
+        let fit = regress_with(kernel, inputs, &p);
         let (want, want_var) = direct(inputs, &p);
         for (i, want) in want.iter().enumerate() {
             for (k, &t) in want.iter().enumerate() {
