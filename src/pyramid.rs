@@ -330,49 +330,68 @@ fn guided_expand(c: &Image, fine: &Image, coarse_guide: &Image) -> Image {
 /// or ringing, as the neighbourhood clamp of temporal anti-aliasing). Leaves `img` unchanged where it
 /// already is in range, so an untouched pyramid still reconstructs exactly.
 fn clamp_to_neighbourhood(img: &mut Image, guide: &Image, r: usize) {
+    clamp_in_bands(img, guide, r, CLAMP_BAND_ROWS);
+}
+
+/// Output rows per task of the neighbourhood clamp: each holds its rows' (and the window's reach)
+/// minima and maxima across, not the whole image's.
+const CLAMP_BAND_ROWS: usize = 32;
+
+/// [`clamp_to_neighbourhood`] with `band_rows` output rows per task.
+fn clamp_in_bands(img: &mut Image, guide: &Image, r: usize, band_rows: usize) {
     let ((w, h), c) = (img.dims(), img.channels());
     let stride = c * w;
     if stride == 0 {
         return;
     }
+    let band_rows = band_rows.max(1);
     // Min and max are exact and the window a rectangle: over each row's 2r + 1 columns first
     // (whole rows at a time, so the loops run in vector lanes), then over the 2r + 1 rows.
-    let across = |pick: fn(f32, f32) -> f32| {
-        let mut out = guide.data().to_vec();
-        out.par_chunks_mut(stride)
-            .zip(guide.data().par_chunks(stride))
-            .for_each(|(out, row)| {
-                for s in (1..=r.min(w - 1)).map(|d| c * d) {
-                    for (o, &v) in out[..stride - s].iter_mut().zip(&row[s..]) {
-                        *o = pick(*o, v);
-                    }
-                    for (o, &v) in out[s..].iter_mut().zip(&row[..stride - s]) {
-                        *o = pick(*o, v);
-                    }
+    let across = |rows: std::ops::Range<usize>, pick: fn(f32, f32) -> f32| {
+        let mut out = guide.data()[rows.start * stride..rows.end * stride].to_vec();
+        for (out, row) in out
+            .chunks_mut(stride)
+            .zip(guide.data()[rows.start * stride..].chunks(stride))
+        {
+            for s in (1..=r.min(w - 1)).map(|d| c * d) {
+                for (o, &v) in out[..stride - s].iter_mut().zip(&row[s..]) {
+                    *o = pick(*o, v);
                 }
-            });
-        out
-    };
-    let (lo_rows, hi_rows) = (across(f32::min), across(f32::max));
-    img.data_mut()
-        .par_chunks_mut(stride)
-        .enumerate()
-        .for_each(|(y, row)| {
-            let mut lo = lo_rows[y * stride..(y + 1) * stride].to_vec();
-            let mut hi = hi_rows[y * stride..(y + 1) * stride].to_vec();
-            for yy in (y.saturating_sub(r)..=(y + r).min(h - 1)).filter(|&yy| yy != y) {
-                let span = yy * stride..(yy + 1) * stride;
-                for ((l, h), (&a, &b)) in lo
-                    .iter_mut()
-                    .zip(hi.iter_mut())
-                    .zip(lo_rows[span.clone()].iter().zip(&hi_rows[span]))
-                {
-                    *l = l.min(a);
-                    *h = h.max(b);
+                for (o, &v) in out[s..].iter_mut().zip(&row[..stride - s]) {
+                    *o = pick(*o, v);
                 }
             }
-            for ((v, &l), &h) in row.iter_mut().zip(&lo).zip(&hi) {
-                *v = v.clamp(l, h);
+        }
+        out
+    };
+    img.data_mut()
+        .par_chunks_mut(stride * band_rows)
+        .enumerate()
+        .for_each(|(band, rows)| {
+            let y0 = band * band_rows;
+            let y1 = (y0 + band_rows).min(h);
+            let reach = y0.saturating_sub(r)..(y1 + r).min(h);
+            let (lo_rows, hi_rows) = (
+                across(reach.clone(), f32::min),
+                across(reach.clone(), f32::max),
+            );
+            let span = |yy: usize| (yy - reach.start) * stride..(yy - reach.start + 1) * stride;
+            for (y, row) in (y0..y1).zip(rows.chunks_mut(stride)) {
+                let mut lo = lo_rows[span(y)].to_vec();
+                let mut hi = hi_rows[span(y)].to_vec();
+                for yy in (y.saturating_sub(r)..=(y + r).min(h - 1)).filter(|&yy| yy != y) {
+                    for ((l, h), (&a, &b)) in lo
+                        .iter_mut()
+                        .zip(hi.iter_mut())
+                        .zip(lo_rows[span(yy)].iter().zip(&hi_rows[span(yy)]))
+                    {
+                        *l = l.min(a);
+                        *h = h.max(b);
+                    }
+                }
+                for ((v, &l), &h) in row.iter_mut().zip(&lo).zip(&hi) {
+                    *v = v.clamp(l, h);
+                }
             }
         });
 }
@@ -416,19 +435,20 @@ pub fn blend(
             expand(&correction, w, h)?
         };
         let b = band_weights.get(l).copied().unwrap_or(1.0);
-        let guide = clamp_radius.map(|_| fine.clone());
-        let mut next = fine;
+        // The sum is formed in `up`'s memory, so `fine` stays as the clamp's guide without a copy.
+        let mut next = up;
         if b != 1.0 {
             let low = expand(&reduced, w, h)?;
-            for (v, &lo) in next.data_mut().iter_mut().zip(low.data()) {
-                *v = b * *v + (1.0 - b) * lo;
+            for ((v, &f), &lo) in next.data_mut().iter_mut().zip(fine.data()).zip(low.data()) {
+                *v += b * f + (1.0 - b) * lo;
+            }
+        } else {
+            for (v, &f) in next.data_mut().iter_mut().zip(fine.data()) {
+                *v += f;
             }
         }
-        for (v, &u) in next.data_mut().iter_mut().zip(up.data()) {
-            *v += u;
-        }
-        if let (Some(radius), Some(guide)) = (clamp_radius, &guide) {
-            clamp_to_neighbourhood(&mut next, guide, radius);
+        if let Some(radius) = clamp_radius {
+            clamp_to_neighbourhood(&mut next, &fine, radius);
         }
         r = next;
     }
@@ -455,20 +475,28 @@ mod tests {
                     Image::from_fn(w, h, 3, |x, y, c| ((x * 31 + y * 17 + c * 7) % 11) as f32);
                 let img =
                     Image::from_fn(w, h, 3, |x, y, c| ((x * 5 + y * 3 + c) % 13) as f32 - 1.0);
-                let mut got = img.clone();
-                clamp_to_neighbourhood(&mut got, &guide, r);
-                for y in 0..h {
-                    for x in 0..w {
-                        for c in 0..3 {
-                            let cells = (y.saturating_sub(r)..=(y + r).min(h - 1)).flat_map(|yy| {
-                                (x.saturating_sub(r)..=(x + r).min(w - 1)).map(move |xx| (xx, yy))
-                            });
-                            let values: Vec<f32> =
-                                cells.map(|(xx, yy)| guide.at(xx, yy)[c]).collect();
-                            let lo = values.iter().copied().fold(f32::INFINITY, f32::min);
-                            let hi = values.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-                            let want = img.at(x, y)[c].clamp(lo, hi);
-                            assert_eq!(got.at(x, y)[c], want, "{w}x{h} r {r} at ({x}, {y}, {c})");
+                for band_rows in [1, 2, 3, CLAMP_BAND_ROWS] {
+                    let mut got = img.clone();
+                    clamp_in_bands(&mut got, &guide, r, band_rows);
+                    for y in 0..h {
+                        for x in 0..w {
+                            for c in 0..3 {
+                                let cells =
+                                    (y.saturating_sub(r)..=(y + r).min(h - 1)).flat_map(|yy| {
+                                        (x.saturating_sub(r)..=(x + r).min(w - 1))
+                                            .map(move |xx| (xx, yy))
+                                    });
+                                let values: Vec<f32> =
+                                    cells.map(|(xx, yy)| guide.at(xx, yy)[c]).collect();
+                                let lo = values.iter().copied().fold(f32::INFINITY, f32::min);
+                                let hi = values.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+                                let want = img.at(x, y)[c].clamp(lo, hi);
+                                assert_eq!(
+                                    got.at(x, y)[c],
+                                    want,
+                                    "{w}x{h} r {r}, {band_rows} rows a band, at ({x}, {y}, {c})"
+                                );
+                            }
                         }
                     }
                 }

@@ -34,7 +34,10 @@ const BAND_ROWS: usize = 32;
 /// Columns of a band swept row by row before the next: the window's rows of every lane stay in
 /// the core's cache from one output row to the next.
 const TILE_COLUMNS: usize = 64;
-const _: () = assert!(TILE_COLUMNS.is_multiple_of(GROUP), "a tile holds whole groups");
+const _: () = assert!(
+    TILE_COLUMNS.is_multiple_of(GROUP),
+    "a tile holds whole groups"
+);
 
 /// Pixels of a row whose window sums are formed together, side by side (one AVX2 register).
 const GROUP: usize = 8;
