@@ -20,6 +20,9 @@ pub struct Buffers {
     features: FeatureSet,
     /// Buffers created by stages, by name.
     created: BTreeMap<String, Image>,
+    /// Names that read a created buffer (name → its target) until either is written: a stage that
+    /// passes a buffer on unchanged (the `noise` stage's `reuse`) costs no copy.
+    shared: BTreeMap<String, String>,
 }
 
 impl From<RenderSet> for Buffers {
@@ -34,6 +37,7 @@ impl From<RenderSet> for Buffers {
             color: Some(set.color),
             features: set.features,
             created,
+            shared: BTreeMap::new(),
         }
     }
 }
@@ -86,6 +90,7 @@ impl Buffers {
                 ));
             }
         }
+        self.unshare(&name);
         match Feature::from_name(&name) {
             Some(f) => {
                 self.features.set(f, image)?;
@@ -98,7 +103,54 @@ impl Buffers {
         Ok(())
     }
 
+    /// Makes `name` hold what `source` holds: the same memory while neither is written or
+    /// removed (each keeps its own value after), or a copy when either is the colour or a feature.
+    /// Errors if `source` is missing.
+    pub fn insert_same(&mut self, name: impl Into<String>, source: &str) -> Result<()> {
+        let name = name.into();
+        let source = self
+            .shared
+            .get(source)
+            .cloned()
+            .unwrap_or(source.to_string());
+        let image = self.require(&source)?;
+        if name == source {
+            return Ok(());
+        }
+        let created = |n: &str| Feature::from_name(n).is_none() && n != COLOR;
+        if !(created(&name) && created(&source)) {
+            let copy = image.par_clone();
+            return self.insert(name, copy);
+        }
+        self.unshare(&name);
+        self.created.remove(&name);
+        self.shared.insert(name, source);
+        Ok(())
+    }
+
+    /// Before `name` is written or removed: if it reads another buffer it stops doing so, and the
+    /// names that read it get their own copy of its value.
+    fn unshare(&mut self, name: &str) {
+        self.shared.remove(name);
+        let readers: Vec<String> = self
+            .shared
+            .iter()
+            .filter(|(_, target)| *target == name)
+            .map(|(reader, _)| reader.clone())
+            .collect();
+        for reader in readers {
+            self.shared.remove(&reader);
+            if let Some(img) = self.created.get(name) {
+                let copy = img.par_clone();
+                self.created.insert(reader, copy);
+            }
+        }
+    }
+
     pub fn get(&self, name: &str) -> Option<&Image> {
+        if let Some(target) = self.shared.get(name) {
+            return self.created.get(target);
+        }
         match Feature::from_name(name) {
             Some(f) => self.features.get(f),
             None if name == COLOR => self.color.as_ref(),
@@ -107,6 +159,11 @@ impl Buffers {
     }
 
     pub fn get_mut(&mut self, name: &str) -> Option<&mut Image> {
+        if let Some(target) = self.shared.remove(name) {
+            let copy = self.created.get(&target)?.par_clone();
+            self.created.insert(name.to_string(), copy);
+        }
+        self.unshare(name);
         match Feature::from_name(name) {
             Some(f) => self.features.get_mut(f),
             None if name == COLOR => self.color.as_mut(),
@@ -154,6 +211,10 @@ impl Buffers {
     }
 
     pub fn remove(&mut self, name: &str) -> Option<Image> {
+        if let Some(target) = self.shared.remove(name) {
+            return self.created.get(&target).map(Image::par_clone);
+        }
+        self.unshare(name);
         match Feature::from_name(name) {
             Some(f) => self.features.take(f),
             None if name == COLOR => self.color.take(),
@@ -165,12 +226,21 @@ impl Buffers {
         self.get(name).is_some()
     }
 
-    /// Every buffer with its name: colour, the features, then the created ones by name.
+    /// Every buffer with its name: colour, the features, the created ones by name, then the names
+    /// that share a created one's memory.
     pub fn iter(&self) -> impl Iterator<Item = (&str, &Image)> {
         let color = self.color.as_ref().map(|c| (COLOR, c));
         let features = self.features.iter().map(|(f, img)| (f.name(), img));
         let created = self.created.iter().map(|(n, img)| (n.as_str(), img));
-        color.into_iter().chain(features).chain(created)
+        let shared = self
+            .shared
+            .iter()
+            .filter_map(|(n, target)| Some((n.as_str(), self.created.get(target)?)));
+        color
+            .into_iter()
+            .chain(features)
+            .chain(created)
+            .chain(shared)
     }
 
     pub fn names(&self) -> impl Iterator<Item = &str> {
@@ -179,5 +249,81 @@ impl Buffers {
 
     fn len(&self) -> usize {
         self.iter().count()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn filled(v: f32) -> Image {
+        Image::filled(4, 3, 3, v)
+    }
+
+    fn value(b: &Buffers, name: &str) -> Option<f32> {
+        b.get(name).map(|img| img.data()[0])
+    }
+
+    #[test]
+    fn a_shared_name_reads_its_source_and_keeps_its_value_when_either_is_written() {
+        let mut b = Buffers::new();
+        b.insert("noise", filled(1.0)).unwrap();
+        b.insert_same("level", "noise").unwrap();
+        assert_eq!(value(&b, "level"), Some(1.0));
+        assert!(std::ptr::eq(
+            b.get("level").unwrap(),
+            b.get("noise").unwrap()
+        ));
+        assert_eq!(b.names().filter(|n| *n == "level").count(), 1);
+
+        // The source replaced: the shared name keeps the old value.
+        b.insert("noise", filled(2.0)).unwrap();
+        assert_eq!(
+            (value(&b, "noise"), value(&b, "level")),
+            (Some(2.0), Some(1.0))
+        );
+
+        // The shared name written in place: the source does not change.
+        b.insert_same("other", "noise").unwrap();
+        b.get_mut("other").unwrap().data_mut()[0] = 5.0;
+        assert_eq!(
+            (value(&b, "noise"), value(&b, "other")),
+            (Some(2.0), Some(5.0))
+        );
+
+        // The source written in place: the shared name does not change.
+        b.insert_same("third", "noise").unwrap();
+        b.get_mut("noise").unwrap().data_mut()[0] = 7.0;
+        assert_eq!(
+            (value(&b, "noise"), value(&b, "third")),
+            (Some(7.0), Some(2.0))
+        );
+
+        // Removing either leaves the other.
+        b.insert_same("fourth", "noise").unwrap();
+        assert_eq!(b.remove("noise").map(|i| i.data()[0]), Some(7.0));
+        assert_eq!((value(&b, "noise"), value(&b, "fourth")), (None, Some(7.0)));
+        b.insert_same("fifth", "fourth").unwrap();
+        assert_eq!(b.remove("fifth").map(|i| i.data()[0]), Some(7.0));
+        assert_eq!((value(&b, "fourth"), value(&b, "fifth")), (Some(7.0), None));
+    }
+
+    #[test]
+    fn sharing_the_colour_or_a_missing_buffer() {
+        let mut b = Buffers::new();
+        b.insert(COLOR, filled(3.0)).unwrap();
+        // The colour is conditioned in place, so a name that takes it gets a copy.
+        b.insert_same("copy", COLOR).unwrap();
+        b.inputs_mut().0.unwrap().data_mut()[0] = 4.0;
+        assert_eq!(value(&b, "copy"), Some(3.0));
+        assert!(b.insert_same("x", "missing").is_err());
+        // A name shared with itself, or with a name that shares it, stays as it is.
+        b.insert_same("copy", "copy").unwrap();
+        b.insert_same("back", "copy").unwrap();
+        b.insert_same("copy", "back").unwrap();
+        assert_eq!(
+            (value(&b, "copy"), value(&b, "back")),
+            (Some(3.0), Some(3.0))
+        );
     }
 }

@@ -98,8 +98,7 @@ impl Stage for NoiseStage {
         if let Some(done) = self.params.reuse.as_deref().filter(|_| ctx.level == 0) {
             if let Some(v) = buffers.get_channels(done, 3)? {
                 if v.dims() == color.dims() {
-                    let v = v.par_clone();
-                    buffers.insert(self.io.output.clone(), v)?;
+                    buffers.insert_same(self.io.output.clone(), done)?;
                     return Ok(0);
                 }
             }
