@@ -13,6 +13,8 @@
 //! count. Variance is per RGB channel; it scales with the square of the exposure, so everything
 //! derived from it here is exposure-invariant.
 
+use std::ops::Range;
+
 use rayon::prelude::*;
 
 use crate::image::{par_vec, Image};
@@ -61,11 +63,16 @@ impl<'a> Surface<'a> {
         }
     }
 
-    /// The features `same_key` compares, one plane each: albedo (3), normal (3), depth, normal
-    /// known (1/0). A missing feature is zeros, which every pair passes, as when it is not compared.
-    fn planes(&self, n: usize) -> [Vec<f32>; KEYS] {
+    /// The features `same_key` compares for the `w`-pixel rows `rows`, one plane each: albedo (3),
+    /// normal (3), depth, normal known (1/0). A missing feature is zeros, which every pair passes,
+    /// as when it is not compared.
+    fn planes(&self, rows: Range<usize>, w: usize) -> [Vec<f32>; KEYS] {
+        let (first, n) = (rows.start * w, rows.len() * w);
         let plane = |src: Option<&[f32]>, stride: usize, k: usize| match src {
-            Some(v) => v.par_chunks_exact(stride).map(|px| px[k]).collect(),
+            Some(v) => v[stride * first..stride * (first + n)]
+                .chunks_exact(stride)
+                .map(|px| px[k])
+                .collect(),
             None => vec![0.0; n],
         };
         let (a, nrm, z) = (self.albedo, self.normal, self.depth);
@@ -80,7 +87,6 @@ impl<'a> Surface<'a> {
             Vec::new(),
         ];
         planes[7] = (0..n)
-            .into_par_iter()
             .map(|i| {
                 let known = planes[3][i] != 0.0 || planes[4][i] != 0.0 || planes[5][i] != 0.0;
                 if known {
@@ -97,12 +103,15 @@ impl<'a> Surface<'a> {
     /// `same_key` over runs of pixels, each pair once (`window_bits`).
     fn mates(&self, w: usize, h: usize, radius: usize) -> Mates {
         let mut mates = Mates::new(w, radius);
-        let planes = self.planes(w * h);
         let kernel = Kernel::detect();
-        mates.bits = window_bits::window_bits(w, h, radius, true, |i0, j0, bit, out| {
-            let planes = &planes;
-            row_kernel!(kernel, same_key_run(planes: &[Vec<f32>; KEYS], i0: usize, j0: usize, bit: u32, out: &mut [u64]))
-        });
+        mates.bits = window_bits::window_bits(
+            w,
+            h,
+            radius,
+            true,
+            |rows| self.planes(rows, w),
+            |planes, i0, j0, bit, out| row_kernel!(kernel, same_key_run(planes: &[Vec<f32>; KEYS], i0: usize, j0: usize, bit: u32, out: &mut [u64])),
+        );
         mates
     }
 
@@ -997,7 +1006,8 @@ mod tests {
 
     #[test]
     fn mates_are_the_pairwise_test_in_window_order() {
-        let (w, h) = (13, 9);
+        // Taller than `window_bits`' bands of rows, so windows cross from one band to the next.
+        let (w, h) = (13, 37);
         let mut set = FeatureSet::default();
         let albedo = Image::from_fn(
             w,
@@ -1023,7 +1033,7 @@ mod tests {
         set.set(Feature::Normal, normal).unwrap();
         set.set(Feature::Depth, depth).unwrap();
         let surface = Surface::new(&set, (w, h));
-        let planes = surface.planes(w * h);
+        let planes = surface.planes(0..h, w);
         let key = |i: usize| std::array::from_fn(|k| planes[k][i]);
         for radius in [1, 2, 3] {
             let mates = surface.mates(w, h, radius);

@@ -10,6 +10,8 @@
 //! A pixel without neighbours (a 1×1 image) is never flagged. Deterministic: no randomness, and
 //! rows are independent, so any thread count gives the same bits.
 
+use std::ops::Range;
+
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -216,33 +218,15 @@ const BITS_RADIUS: usize = crate::window_bits::MOST_RADIUS;
 /// inside the image and on the pixel's surface (`Guides::distances` within both tolerances, the
 /// same f32 operations, so the same neighbours).
 fn surface_bits(guides: &Guides, p: &DetectParams, w: usize, h: usize) -> Vec<u64> {
-    // Albedo (3), normal (3), normal known: zeros stand for a missing buffer, whose distance is
-    // then 0, as `distances` has it.
-    let plane = |img: Option<&Image>, k: usize| -> Vec<f32> {
-        img.map_or_else(
-            || vec![0.0; w * h],
-            |img| img.data().par_chunks_exact(3).map(|px| px[k]).collect(),
-        )
-    };
-    let planes = SurfacePlanes {
-        albedo: std::array::from_fn(|k| plane(guides.albedo, k)),
-        normal: std::array::from_fn(|k| plane(guides.normal, k)),
-        known: guides.normal.map_or_else(
-            || vec![false; w * h],
-            |n| {
-                n.data()
-                    .par_chunks_exact(3)
-                    .map(|v| v.iter().any(|&c| c != 0.0))
-                    .collect()
-            },
-        ),
-        tol: (p.albedo_tol, p.normal_tol),
-    };
     let kernel = Kernel::detect();
-    window_bits(w, h, p.radius, false, |i0, j0, bit, out| {
-        let planes = &planes;
-        row_kernel!(kernel, same_surface_run(planes: &SurfacePlanes, i0: usize, j0: usize, bit: u32, out: &mut [u64]))
-    })
+    window_bits(
+        w,
+        h,
+        p.radius,
+        false,
+        |rows| SurfacePlanes::of_rows(guides, p, rows, w),
+        |planes, i0, j0, bit, out| row_kernel!(kernel, same_surface_run(planes: &SurfacePlanes, i0: usize, j0: usize, bit: u32, out: &mut [u64])),
+    )
 }
 
 /// What [`surface_bits`] compares, one plane per channel.
@@ -252,6 +236,27 @@ struct SurfacePlanes {
     known: Vec<bool>,
     /// Albedo and normal tolerances.
     tol: (f32, f32),
+}
+
+impl SurfacePlanes {
+    /// The planes of the `w`-pixel rows `rows`. Albedo (3), normal (3), normal known: zeros stand
+    /// for a missing buffer, whose distance is then 0, as `distances` has it.
+    fn of_rows<'a>(guides: &Guides<'a>, p: &DetectParams, rows: Range<usize>, w: usize) -> Self {
+        let (first, n) = (rows.start * w, rows.len() * w);
+        let pixels = |img: &'a Image| img.data()[3 * first..3 * (first + n)].chunks_exact(3);
+        let plane = |img: Option<&'a Image>, k: usize| -> Vec<f32> {
+            img.map_or_else(|| vec![0.0; n], |img| pixels(img).map(|px| px[k]).collect())
+        };
+        SurfacePlanes {
+            albedo: std::array::from_fn(|k| plane(guides.albedo, k)),
+            normal: std::array::from_fn(|k| plane(guides.normal, k)),
+            known: guides.normal.map_or_else(
+                || vec![false; n],
+                |img| pixels(img).map(|v| v.iter().any(|&c| c != 0.0)).collect(),
+            ),
+            tol: (p.albedo_tol, p.normal_tol),
+        }
+    }
 }
 
 /// Sets `bit` of `out[t]` where pixels i0 + t and j0 + t lie on one surface: `Guides::distances`,
@@ -521,7 +526,8 @@ mod tests {
 
     #[test]
     fn surface_bits_are_the_pairwise_test_in_window_order() {
-        let (w, h) = (13, 9);
+        // Taller than `window_bits`' bands of rows, so windows cross from one band to the next.
+        let (w, h) = (13, 37);
         // Few distinct albedos and normals (ties at the tolerances), unknown normals, a NaN.
         let albedo = Image::from_fn(w, h, 3, |x, y, k| {
             if (x, y) == (4, 4) {

@@ -6,6 +6,8 @@
 //! after the centre in raster order) over contiguous runs of pixels, cell by cell, which the test's
 //! caller runs in vector lanes; the backward half is read from the neighbours' forward bits.
 
+use std::ops::Range;
+
 use rayon::prelude::*;
 
 use crate::image::par_vec;
@@ -13,16 +15,22 @@ use crate::image::par_vec;
 /// Largest radius whose window's cells fit the bits of a `u64` (7×7).
 pub(crate) const MOST_RADIUS: usize = 3;
 
-/// The bits of a `w`×`h` image's windows of `radius`. `forward(i0, j0, bit, out)` sets `bit` of
-/// `out[t]` where pixels i0 + t and j0 + t pass the test (j0 the neighbour at that bit's cell);
-/// it must be symmetric to the bit. With `centre`, every pixel's own bit is tested too (as the
-/// pair (i, i)). A cell outside the image is never set.
-pub(crate) fn window_bits(
+/// Rows per task of the forward half: each task builds what the test reads (`band`) for its own
+/// rows and the window's reach below them, so no copy of the whole image's features is held.
+const BAND_ROWS: usize = 16;
+
+/// The bits of a `w`×`h` image's windows of `radius`. `band(rows)` gives what the test reads
+/// for a range of rows; `forward(data, i0, j0, bit, out)` sets `bit` of `out[t]` where pixels
+/// i0 + t and j0 + t pass the test (j0 the neighbour at that bit's cell), both indices counted
+/// from the first of `data`'s rows; it must be symmetric to the bit. With `centre`, every
+/// pixel's own bit is tested too (as the pair (i, i)). A cell outside the image is never set.
+pub(crate) fn window_bits<T>(
     w: usize,
     h: usize,
     radius: usize,
     centre: bool,
-    forward: impl Fn(usize, usize, u32, &mut [u64]) + Sync,
+    band: impl Fn(Range<usize>) -> T + Sync,
+    forward: impl Fn(&T, usize, usize, u32, &mut [u64]) + Sync,
 ) -> Vec<u64> {
     assert!(
         radius <= MOST_RADIUS,
@@ -40,13 +48,22 @@ pub(crate) fn window_bits(
     let (ahead, behind) = (cells(true), cells(false));
     let row = w.max(1);
     let mut fwd = par_vec(0u64, w * h);
-    fwd.par_chunks_mut(row).enumerate().for_each(|(y, out)| {
-        for &(bit, dx, dy) in &ahead {
-            if let Some((lo, hi, j0)) = run(w, h, y, dx, dy) {
-                forward(y * w + lo, j0, bit, &mut out[lo..hi]);
+    fwd.par_chunks_mut(row * BAND_ROWS)
+        .enumerate()
+        .for_each(|(b, out)| {
+            let y0 = b * BAND_ROWS;
+            let y1 = (y0 + BAND_ROWS).min(h);
+            // The forward half looks down by at most `radius` rows.
+            let data = band(y0..(y1 + radius).min(h));
+            let base = y0 * w;
+            for (y, out) in (y0..y1).zip(out.chunks_mut(row)) {
+                for &(bit, dx, dy) in &ahead {
+                    if let Some((lo, hi, j0)) = run(w, h, y, dx, dy) {
+                        forward(&data, y * w + lo - base, j0 - base, bit, &mut out[lo..hi]);
+                    }
+                }
             }
-        }
-    });
+        });
     let mut bits = par_vec(0u64, w * h);
     bits.par_chunks_mut(row).enumerate().for_each(|(y, bits)| {
         bits.copy_from_slice(&fwd[y * w..y * w + bits.len()]);
