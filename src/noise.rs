@@ -284,6 +284,8 @@ pub fn estimate_with(kernel: Kernel, color: &Image, features: &FeatureSet) -> Im
     for (&i, r) in alone.iter().zip(own) {
         raw[i] = r;
     }
+    // The padded colour is not read again: its memory is free before the smoothed image's.
+    drop(flat);
     smooth(color, &surface, &mates, &raw)
 }
 
