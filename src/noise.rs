@@ -259,34 +259,48 @@ pub fn estimate_with(kernel: Kernel, color: &Image, features: &FeatureSet) -> Im
         c[3 * i + k] as f64 / surface.scale(i)[k]
     });
     let mates = surface.mates(w, h, SMOOTH_RADIUS as usize);
-    let mut raw = par_vec(([0.0; 3], 0), w * h);
+    // Each raw estimate as its demodulated variance and its degrees of freedom (at most
+    // `MAX_PAIRS`), kept apart: a byte for the count instead of a padded word.
+    let mut sums = par_vec([0.0f64; 3], w * h);
+    let mut dof = par_vec(0u8, w * h);
     // Raw estimates on every other row: adjacent rows' 5×5 windows share 4 of their 5 rows, and
     // the 7×7 smoothing still reads every pair of the 9×9 around a pixel, so half the work reads
     // nearly the same noise.
-    raw.par_chunks_mut(w.max(1))
+    sums.par_chunks_mut(w.max(1))
+        .zip(dof.par_chunks_mut(w.max(1)))
         .enumerate()
         .filter(|(y, _)| y % 2 == 0)
-        .for_each(|(y, out)| {
-            let (flat, mates) = (&flat, &mates);
-            row_kernel!(kernel, raw_row(flat: &Padded, mates: &Mates, y: usize, out: &mut [([f64; 3], usize)]))
+        .for_each_init(Vec::new, |row, (y, (sums, dof))| {
+            row.resize(sums.len(), ([0.0; 3], 0));
+            let (flat, mates, out) = (&flat, &mates, row.as_mut_slice());
+            row_kernel!(kernel, raw_row(flat: &Padded, mates: &Mates, y: usize, out: &mut [([f64; 3], usize)]));
+            for ((s, d), &(v, n)) in sums.iter_mut().zip(dof.iter_mut()).zip(row.iter()) {
+                (*s, *d) = (v, degrees(n));
+            }
         });
     // A pixel of an odd row with no raw estimate among its surface-mates (a line one pixel high)
     // takes its own.
     let alone: Vec<usize> = (0..w * h)
         .into_par_iter()
-        .filter(|&i| (i / w) % 2 == 1 && mates.of(i).all(|j| raw[j].1 == 0))
+        .filter(|&i| (i / w) % 2 == 1 && mates.of(i).all(|j| dof[j] == 0))
         .collect();
     let window = raw_window(&mates);
     let own: Vec<([f64; 3], usize)> = alone
         .par_iter()
         .map(|&i| pair_spread::<1>(&flat, &mates, window, i % w, i / w, w)[0])
         .collect();
-    for (&i, r) in alone.iter().zip(own) {
-        raw[i] = r;
+    for (&i, (v, n)) in alone.iter().zip(own) {
+        (sums[i], dof[i]) = (v, degrees(n));
     }
     // The padded colour is not read again: its memory is free before the smoothed image's.
     drop(flat);
-    smooth(color, &surface, &mates, &raw)
+    smooth(color, &surface, &mates, |j| (sums[j], dof[j] as usize))
+}
+
+/// A raw estimate's degrees of freedom as stored: its pairs, at most `MAX_PAIRS`.
+fn degrees(n: usize) -> u8 {
+    const _: () = assert!(MAX_PAIRS <= u8::MAX as usize, "a window's pairs fit a byte");
+    u8::try_from(n).expect("at most MAX_PAIRS pairs")
 }
 
 /// The raw window's cells among the mates' bits.
@@ -572,7 +586,7 @@ fn smooth_measured_raw(color: &Image, surface: &Surface, raw: &[([f64; 3], usize
         color,
         surface,
         &surface.mates(w, h, SMOOTH_RADIUS as usize),
-        raw,
+        |j| raw[j],
     )
 }
 
@@ -587,7 +601,12 @@ fn clean(v: f32) -> f64 {
 
 /// Averages raw per-pixel estimates (demodulated variance, degrees of freedom; 0 = none) over the
 /// same surface, and brings the result to each pixel's albedo.
-fn smooth(color: &Image, surface: &Surface, mates: &Mates, raw: &[([f64; 3], usize)]) -> Image {
+fn smooth(
+    color: &Image,
+    surface: &Surface,
+    mates: &Mates,
+    raw: impl Fn(usize) -> ([f64; 3], usize) + Sync,
+) -> Image {
     let (w, h) = color.dims();
     let c = color.data();
     let mut out = Image::new(w, h, 3);
@@ -599,7 +618,7 @@ fn smooth(color: &Image, surface: &Surface, mates: &Mates, raw: &[([f64; 3], usi
             let mut acc = [0.0f64; 3];
             let mut dof = 0usize;
             for j in mates.of(i) {
-                let (v, d) = raw[j];
+                let (v, d) = raw(j);
                 if d == 0 {
                     continue;
                 }
