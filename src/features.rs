@@ -382,12 +382,12 @@ impl<'a> Recipe<'a> {
     /// only planes, half the copying.
     pub fn planes(&self, rows: std::ops::Range<usize>, pad: usize) -> (FeaturePlanes, f32) {
         let w = self.color.width();
-        let stride = w + 2 * pad;
-        let plane_len = rows.len() * stride;
-        let mut data = vec![0.0f32; USED_LANES * plane_len];
+        // Row 0 is image row `rows.start`, as in the band's own records.
+        let mut planes = FeaturePlanes::zeroed(w, 0..rows.len(), pad, USED_LANES, self.material);
+        let (stride, plane_len, data) = (planes.stride, planes.plane_len, &mut planes.data);
         // Row by row: the colour pixel by pixel into its three lanes, then each buffer lane by lane,
         // reading with a fixed stride and writing one contiguous run.
-        for (r, y) in rows.clone().enumerate() {
+        for (r, y) in rows.enumerate() {
             let at = r * stride + pad;
             for x in 0..w {
                 for (k, v) in self.color(y * w + x).into_iter().enumerate() {
@@ -405,15 +405,6 @@ impl<'a> Recipe<'a> {
                 }
             }
         }
-        // Row 0 is image row `rows.start`, as in the band's own records.
-        let planes = FeaturePlanes {
-            first_row: 0,
-            pad,
-            stride,
-            plane_len,
-            data,
-            material: self.material,
-        };
         (planes, self.weights.depth)
     }
 
@@ -461,26 +452,39 @@ impl FeaturePlanes {
         filled: &[usize],
         value: impl Fn(usize, usize) -> f32,
     ) -> FeaturePlanes {
-        let stride = width + 2 * pad;
-        let plane_len = rows.len() * stride;
-        let mut data = vec![0.0f32; lanes * plane_len];
+        let mut planes = FeaturePlanes::zeroed(width, rows.clone(), pad, lanes, true);
+        let (stride, plane_len) = (planes.stride, planes.plane_len);
         // Pixel by pixel, every lane of one pixel in turn: each source record is read once,
         // while its cache line is loaded, rather than once per lane.
-        for (r, y) in rows.clone().enumerate() {
+        for (r, y) in rows.enumerate() {
             let at = r * stride + pad;
             for x in 0..width {
                 for &lane in filled {
-                    data[lane * plane_len + at + x] = value(y * width + x, lane);
+                    planes.data[lane * plane_len + at + x] = value(y * width + x, lane);
                 }
             }
         }
+        planes
+    }
+
+    /// Planes of `lanes` zeros per pixel for rows `rows` of an image `width` wide, every row
+    /// padded by `pad` columns on both sides: the layout the builders fill.
+    fn zeroed(
+        width: usize,
+        rows: std::ops::Range<usize>,
+        pad: usize,
+        lanes: usize,
+        material: bool,
+    ) -> FeaturePlanes {
+        let stride = width + 2 * pad;
+        let plane_len = rows.len() * stride;
         FeaturePlanes {
             first_row: rows.start,
             pad,
             stride,
             plane_len,
-            data,
-            material: true,
+            data: vec![0.0f32; lanes * plane_len],
+            material,
         }
     }
 

@@ -376,9 +376,11 @@ fn clamp_in_bands(img: &mut Image, guide: &Image, r: usize, band_rows: usize) {
                 across(reach.clone(), f32::max),
             );
             let span = |yy: usize| (yy - reach.start) * stride..(yy - reach.start + 1) * stride;
+            // One output row's window minima and maxima, rewritten row by row.
+            let (mut lo, mut hi) = (vec![0.0f32; stride], vec![0.0f32; stride]);
             for (y, row) in (y0..y1).zip(rows.chunks_mut(stride)) {
-                let mut lo = lo_rows[span(y)].to_vec();
-                let mut hi = hi_rows[span(y)].to_vec();
+                lo.copy_from_slice(&lo_rows[span(y)]);
+                hi.copy_from_slice(&hi_rows[span(y)]);
                 for yy in (y.saturating_sub(r)..=(y + r).min(h - 1)).filter(|&yy| yy != y) {
                     for ((l, h), (&a, &b)) in lo
                         .iter_mut()
