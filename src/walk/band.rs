@@ -159,7 +159,10 @@ impl<'a> Band<'a> {
                 true => avx2::batch(params.walks).min((BATCH_CELLS / cells).max(1)),
                 _ => 1,
             };
-            scratch.grid.resize(batch * cells, 0.0);
+            // Every grid's outer ring is −∞ / 0 from here on: no fill writes a ring cell.
+            scratch.grid.clear();
+            scratch.grid.resize(batch * cells, f32::NEG_INFINITY);
+            scratch.egrid.clear();
             scratch.egrid.resize(batch * cells, 0.0);
             scratch.accs.resize(batch, Accum::default());
             for y0 in y_begin..y_end {
@@ -169,20 +172,16 @@ impl<'a> Band<'a> {
                     let n = match radius {
                         Some(r) => {
                             scratch.starts.clear();
-                            for (b, x0) in xs.clone().enumerate() {
-                                let cell = b * cells..(b + 1) * cells;
-                                let win = Window::fill(
-                                    input,
-                                    inv,
-                                    &mut scratch.grid[cell.clone()],
-                                    &mut scratch.egrid[cell],
-                                    pairs,
-                                    r,
-                                    x0,
-                                    y0,
-                                );
-                                scratch.starts.push((b * cells + win.center(), win.i0));
-                            }
+                            Window::fill_run(
+                                input,
+                                inv,
+                                &mut scratch.grid,
+                                &mut scratch.egrid,
+                                pairs,
+                                r,
+                                (xs.clone(), y0),
+                                &mut scratch.starts,
+                            );
                             match vector {
                                 #[cfg(target_arch = "x86_64")]
                                 // SAFETY: `vector` holds only if the CPU reported AVX2 above

@@ -107,6 +107,12 @@ pub(super) struct Pairs {
     width: usize,
     log: Vec<f32>,
     lin: Vec<f32>,
+    /// Each start pixel's term with itself, −d(x0, x0)²/(2σ²), and its exp, for the band's rows
+    /// from `band_start`: computed a row at a time like the pairs, where a window filled cell by
+    /// cell computes it alone.
+    band_start: usize,
+    own_log: Vec<f32>,
+    own_lin: Vec<f32>,
 }
 
 /// Padding of feature planes so that a run of pairs can be computed in whole groups of 8 (the
@@ -182,6 +188,32 @@ impl Pairs {
                 exp_neg_row(kernel, e);
             }
         }
+        let band_len = band.len() * w;
+        self.own_log.clear();
+        self.own_log.resize(band_len, 0.0);
+        self.own_lin.clear();
+        self.own_lin.resize(band_len, 0.0);
+        for y in band.clone() {
+            let at = (y - band.start) * w;
+            let center = planes.offset(0, y);
+            distance_row(
+                kernel,
+                planes,
+                depth_weight,
+                center,
+                center,
+                &mut run[..w.next_multiple_of(8)],
+            );
+            let t = &mut self.own_log[at..at + w];
+            t.copy_from_slice(&run[..w]);
+            for v in t.iter_mut() {
+                *v = -(*v * *v) * inv;
+            }
+            let e = &mut self.own_lin[at..at + w];
+            e.copy_from_slice(t);
+            exp_neg_row(kernel, e);
+        }
+        self.band_start = band.start;
         let side = 2 * ri + 3;
         self.steps.clear();
         self.steps
@@ -193,6 +225,68 @@ impl Pairs {
                 )
             }));
         (self.offsets, self.first_row, self.rows, self.width) = (offsets, first_row, rows, w);
+    }
+
+    /// The grids of start pixels `xs` of row `y0`, one after the other ((side, centre) their
+    /// size and centre cell), whose windows lie inside the image and the band: every window cell
+    /// from the table, offset by offset for the whole run (its entries for the run are contiguous).
+    /// The rings are left as they are.
+    fn fill_inner(
+        &self,
+        input: &WalkInput,
+        grid: &mut [f32],
+        egrid: &mut [f32],
+        (side, center): (usize, usize),
+        (xs, y0): (Range<usize>, usize),
+    ) {
+        let (w, n, cells) = (self.width, xs.len(), side * side);
+        assert!(
+            grid.len() == n * cells && egrid.len() == n * cells,
+            "one grid per start pixel"
+        );
+        let own = (y0 - self.band_start) * w + xs.start;
+        let (own_log, own_lin) = (&self.own_log[own..own + n], &self.own_lin[own..own + n]);
+        for (b, (g, e)) in grid
+            .chunks_exact_mut(cells)
+            .zip(egrid.chunks_exact_mut(cells))
+            .enumerate()
+        {
+            (g[center], e[center]) = (own_log[b], own_lin[b]);
+        }
+        let at = (y0 - self.first_row) * w + xs.start;
+        for &(plane, dpix, dcell) in &self.steps {
+            // x0 + o is entry (o, x0); x0 − o is entry (o, x0 − o), as d is symmetric.
+            let (up, down) = (plane + at, plane + at - dpix);
+            let (log_up, log_down) = (&self.log[up..up + n], &self.log[down..down + n]);
+            let (lin_up, lin_down) = (&self.lin[up..up + n], &self.lin[down..down + n]);
+            let (fwd, back) = (center + dcell, center - dcell);
+            assert!(fwd < cells, "a window cell inside the grid");
+            for (b, (g, e)) in grid
+                .chunks_exact_mut(cells)
+                .zip(egrid.chunks_exact_mut(cells))
+                .enumerate()
+            {
+                (g[fwd], e[fwd]) = (log_up[b], lin_up[b]);
+                (g[back], e[back]) = (log_down[b], lin_down[b]);
+            }
+        }
+        if let Some(mask) = input.mask {
+            for (b, (g, e)) in grid
+                .chunks_exact_mut(cells)
+                .zip(egrid.chunks_exact_mut(cells))
+                .enumerate()
+            {
+                let i0 = y0 * w + xs.start + b;
+                let cells = self.steps.iter().flat_map(|&(_, dpix, dcell)| {
+                    [(i0 + dpix, center + dcell), (i0 - dpix, center - dcell)]
+                });
+                for (j, c) in std::iter::once((i0, center)).chain(cells) {
+                    if mask[j] {
+                        (g[c], e[c]) = (f32::NEG_INFINITY, 0.0);
+                    }
+                }
+            }
+        }
     }
 
     /// Entry (offset index `o`, pixel (x, y)): the log term and its exp.
@@ -214,64 +308,78 @@ pub(super) struct Window<'g> {
 }
 
 impl<'g> Window<'g> {
-    /// Fills x0's grids from the band's `pairs` table when there is one, else by computing each
-    /// cell's distance (windows too large for a table).
+    /// Fills the grids of start pixels `xs` of row `y0`, one after the other in `grid` and `egrid`
+    /// ((2r+3)² cells each), from the band's `pairs` table when there is one, else by computing
+    /// each cell's distance (windows too large for a table); pushes each one's centre cell (in the
+    /// whole buffer) and pixel index to `starts`.
+    ///
+    /// The grids' outer rings must hold −∞ and 0 already (as [`Band::run`] leaves them): no fill
+    /// writes a ring cell, so the start pixels whose window lies inside the image write only
+    /// their window's cells.
+    ///
+    /// [`Band::run`]: super::band::Band::run
     #[allow(clippy::too_many_arguments)]
-    pub(super) fn fill(
+    pub(super) fn fill_run(
         input: &WalkInput,
         inv: f32,
-        grid: &'g mut [f32],
-        egrid: &'g mut [f32],
+        grid: &mut [f32],
+        egrid: &mut [f32],
+        pairs: Option<&Pairs>,
+        r: usize,
+        (xs, y0): (Range<usize>, usize),
+        starts: &mut Vec<(usize, usize)>,
+    ) {
+        let (w, h) = input.color.dims();
+        let side = 2 * r + 3;
+        let cells = side * side;
+        let center = (r + 1) * side + r + 1;
+        // The start pixels whose whole window is in the image: a run read from the table.
+        let inner = if y0 >= r && y0 + r < h {
+            xs.start.max(r)..xs.end.min(w.saturating_sub(r))
+        } else {
+            0..0
+        };
+        let slot = |x0: usize| (x0 - xs.start) * cells..(x0 - xs.start + 1) * cells;
+        match pairs {
+            Some(pairs) if !inner.is_empty() => {
+                let slots = slot(inner.start).start..slot(inner.end - 1).end;
+                pairs.fill_inner(
+                    input,
+                    &mut grid[slots.clone()],
+                    &mut egrid[slots],
+                    (side, center),
+                    (inner.clone(), y0),
+                );
+            }
+            _ => {}
+        }
+        for x0 in xs.clone() {
+            if pairs.is_none() || !inner.contains(&x0) {
+                let cell = slot(x0);
+                let (grid, egrid) = (&mut grid[cell.clone()], &mut egrid[cell]);
+                Self::fill_edge(input, inv, grid, egrid, pairs, r, x0, y0);
+            }
+            starts.push((slot(x0).start + center, y0 * w + x0));
+        }
+    }
+
+    /// One start pixel's grids, the whole grid written (window cells outside the image −∞ / 0).
+    #[allow(clippy::too_many_arguments)]
+    fn fill_edge(
+        input: &WalkInput,
+        inv: f32,
+        grid: &mut [f32],
+        egrid: &mut [f32],
         pairs: Option<&Pairs>,
         r: usize,
         x0: usize,
         y0: usize,
-    ) -> Self {
+    ) {
         let (w, h) = input.color.dims();
         let side = 2 * r + 3;
         let i0 = y0 * w + x0;
         let blocked = |j: usize| input.mask.is_some_and(|m| m[j]);
-        let (grid, egrid) = (&mut grid[..side * side], &mut egrid[..side * side]);
         let center = (r + 1) * side + r + 1;
-        let interior = x0 >= r && x0 + r < w && y0 >= r && y0 + r < h;
-        if let (Some(pairs), true) = (pairs, interior) {
-            // Every cell of the window is in the image: write the outer ring and then each inner
-            // cell once, with no bounds to test.
-            for (g, v) in [(&mut *grid, f32::NEG_INFINITY), (&mut *egrid, 0.0)] {
-                g[..side].fill(v);
-                g[side * (side - 1)..].fill(v);
-                for row in 1..side - 1 {
-                    g[row * side] = v;
-                    g[row * side + side - 1] = v;
-                }
-            }
-            let d = input.features.distance(i0, i0);
-            let t = -(d * d) * inv;
-            (grid[center], egrid[center]) = (t, exp_neg(t));
-            let at = (y0 - pairs.first_row) * w + x0;
-            for &(plane, dpix, dcell) in &pairs.steps {
-                // x0 + o is entry (o, x0); x0 − o is entry (o, x0 − o), as d is symmetric.
-                let (up, down) = (plane + at, plane + at - dpix);
-                (grid[center + dcell], egrid[center + dcell]) = (pairs.log[up], pairs.lin[up]);
-                (grid[center - dcell], egrid[center - dcell]) = (pairs.log[down], pairs.lin[down]);
-            }
-            if let Some(mask) = input.mask {
-                let cells = pairs.steps.iter().flat_map(|&(_, dpix, dcell)| {
-                    [(i0 + dpix, center + dcell), (i0 - dpix, center - dcell)]
-                });
-                for (j, g) in std::iter::once((i0, center)).chain(cells) {
-                    if mask[j] {
-                        (grid[g], egrid[g]) = (f32::NEG_INFINITY, 0.0);
-                    }
-                }
-            }
-            return Window {
-                grid,
-                egrid,
-                side,
-                i0,
-            };
-        }
         grid.fill(f32::NEG_INFINITY);
         egrid.fill(0.0);
         if let Some(pairs) = pairs {
@@ -314,12 +422,6 @@ impl<'g> Window<'g> {
                     }
                 }
             }
-        }
-        Window {
-            grid,
-            egrid,
-            side,
-            i0,
         }
     }
 
