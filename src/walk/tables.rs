@@ -178,14 +178,13 @@ impl Pairs {
                     other,
                     &mut run[..n.next_multiple_of(8)],
                 );
-                let t = &mut log[at + lo..at + hi];
-                t.copy_from_slice(&run[..n]);
-                for v in t.iter_mut() {
-                    *v = -(*v * *v) * inv;
-                }
-                let e = &mut lin[at + lo..at + hi];
-                e.copy_from_slice(t);
-                exp_neg_row(kernel, e);
+                terms(
+                    kernel,
+                    inv,
+                    &run[..n],
+                    &mut log[at + lo..at + hi],
+                    &mut lin[at + lo..at + hi],
+                );
             }
         }
         let band_len = band.len() * w;
@@ -204,14 +203,13 @@ impl Pairs {
                 center,
                 &mut run[..w.next_multiple_of(8)],
             );
-            let t = &mut self.own_log[at..at + w];
-            t.copy_from_slice(&run[..w]);
-            for v in t.iter_mut() {
-                *v = -(*v * *v) * inv;
-            }
-            let e = &mut self.own_lin[at..at + w];
-            e.copy_from_slice(t);
-            exp_neg_row(kernel, e);
+            terms(
+                kernel,
+                inv,
+                &run[..w],
+                &mut self.own_log[at..at + w],
+                &mut self.own_lin[at..at + w],
+            );
         }
         self.band_start = band.start;
         let side = 2 * ri + 3;
@@ -295,6 +293,15 @@ impl Pairs {
         let i = (o * self.rows + y - self.first_row) * self.width + x;
         (self.log[i], self.lin[i])
     }
+}
+
+/// `log` = −d²·`inv` of each distance d of `distances`, and `lin` its exp, in one pass.
+fn terms(kernel: Kernel, inv: f32, distances: &[f32], log: &mut [f32], lin: &mut [f32]) {
+    for ((t, e), &d) in log.iter_mut().zip(lin.iter_mut()).zip(distances) {
+        let v = -(d * d) * inv;
+        (*t, *e) = (v, v);
+    }
+    exp_neg_row(kernel, lin);
 }
 
 /// The x0 terms −d(x0, y)²/(2σ²) of one start pixel and their exps, cached in (2r+3)² grids
