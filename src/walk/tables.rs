@@ -169,21 +169,15 @@ impl Pairs {
                 let at = (o * rows + y - first_row) * w;
                 let center = planes.offset(lo as isize, y);
                 let other = planes.offset(lo as isize + dx, ny);
-                let n = hi - lo;
-                distance_row(
+                let (log, lin) = (&mut log[at + lo..at + hi], &mut lin[at + lo..at + hi]);
+                pair_terms(
                     kernel,
                     planes,
-                    depth_weight,
-                    center,
-                    other,
-                    &mut run[..n.next_multiple_of(8)],
-                );
-                terms(
-                    kernel,
-                    inv,
-                    &run[..n],
-                    &mut log[at + lo..at + hi],
-                    &mut lin[at + lo..at + hi],
+                    (depth_weight, inv),
+                    (center, other),
+                    &mut run,
+                    log,
+                    lin,
                 );
             }
         }
@@ -195,20 +189,15 @@ impl Pairs {
         for y in band.clone() {
             let at = (y - band.start) * w;
             let center = planes.offset(0, y);
-            distance_row(
+            let (log, lin) = (&mut self.own_log[at..at + w], &mut self.own_lin[at..at + w]);
+            pair_terms(
                 kernel,
                 planes,
-                depth_weight,
-                center,
-                center,
-                &mut run[..w.next_multiple_of(8)],
-            );
-            terms(
-                kernel,
-                inv,
-                &run[..w],
-                &mut self.own_log[at..at + w],
-                &mut self.own_lin[at..at + w],
+                (depth_weight, inv),
+                (center, center),
+                &mut run,
+                log,
+                lin,
             );
         }
         self.band_start = band.start;
@@ -295,9 +284,29 @@ impl Pairs {
     }
 }
 
-/// `log` = −d²·`inv` of each distance d of `distances`, and `lin` its exp, in one pass.
-fn terms(kernel: Kernel, inv: f32, distances: &[f32], log: &mut [f32], lin: &mut [f32]) {
-    for ((t, e), &d) in log.iter_mut().zip(lin.iter_mut()).zip(distances) {
+/// For the run of `log.len()` pixel pairs from plane offsets `center` and `other`: `log` =
+/// −d²·`inv` of each pair's distance d (depth weighted by `depth_weight`) and `lin` its exp, in
+/// one pass. `run` is scratch space
+/// for the distances, at least the run rounded up to whole groups of 8.
+fn pair_terms(
+    kernel: Kernel,
+    planes: &FeaturePlanes,
+    (depth_weight, inv): (f32, f32),
+    (center, other): (usize, usize),
+    run: &mut [f32],
+    log: &mut [f32],
+    lin: &mut [f32],
+) {
+    let n = log.len();
+    distance_row(
+        kernel,
+        planes,
+        depth_weight,
+        center,
+        other,
+        &mut run[..n.next_multiple_of(8)],
+    );
+    for ((t, e), &d) in log.iter_mut().zip(lin.iter_mut()).zip(&run[..n]) {
         let v = -(d * d) * inv;
         (*t, *e) = (v, v);
     }
@@ -347,40 +356,34 @@ impl<'g> Window<'g> {
             0..0
         };
         let slot = |x0: usize| (x0 - xs.start) * cells..(x0 - xs.start + 1) * cells;
-        match pairs {
-            Some(pairs) if !inner.is_empty() => {
-                let slots = slot(inner.start).start..slot(inner.end - 1).end;
-                pairs.fill_inner(
-                    input,
-                    &mut grid[slots.clone()],
-                    &mut egrid[slots],
-                    (side, center),
-                    (inner.clone(), y0),
-                );
-            }
-            _ => {}
+        if let (Some(pairs), false) = (pairs, inner.is_empty()) {
+            let slots = slot(inner.start).start..slot(inner.end - 1).end;
+            pairs.fill_inner(
+                input,
+                &mut grid[slots.clone()],
+                &mut egrid[slots],
+                (side, center),
+                (inner.clone(), y0),
+            );
         }
         for x0 in xs.clone() {
             if pairs.is_none() || !inner.contains(&x0) {
                 let cell = slot(x0);
-                let (grid, egrid) = (&mut grid[cell.clone()], &mut egrid[cell]);
-                Self::fill_edge(input, inv, grid, egrid, pairs, r, x0, y0);
+                let grids = (&mut grid[cell.clone()], &mut egrid[cell]);
+                Self::fill_edge(input, inv, grids, (pairs, r), (x0, y0));
             }
             starts.push((slot(x0).start + center, y0 * w + x0));
         }
     }
 
-    /// One start pixel's grids, the whole grid written (window cells outside the image −∞ / 0).
-    #[allow(clippy::too_many_arguments)]
+    /// One start pixel's grids, the whole grid written (window cells outside the image −∞ / 0),
+    /// from the table `pairs` when there is one; `r` is the window's radius.
     fn fill_edge(
         input: &WalkInput,
         inv: f32,
-        grid: &mut [f32],
-        egrid: &mut [f32],
-        pairs: Option<&Pairs>,
-        r: usize,
-        x0: usize,
-        y0: usize,
+        (grid, egrid): (&mut [f32], &mut [f32]),
+        (pairs, r): (Option<&Pairs>, usize),
+        (x0, y0): (usize, usize),
     ) {
         let (w, h) = input.color.dims();
         let side = 2 * r + 3;
