@@ -112,7 +112,7 @@ impl Buffers {
             .shared
             .get(source)
             .cloned()
-            .unwrap_or(source.to_string());
+            .unwrap_or_else(|| source.to_string());
         let image = self.require(&source)?;
         if name == source {
             return Ok(());

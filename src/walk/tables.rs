@@ -276,6 +276,13 @@ impl Pairs {
         }
     }
 
+    /// Start pixel (x, y)'s term with itself and its exp; y is a row of the band.
+    #[inline]
+    fn own(&self, x: usize, y: usize) -> (f32, f32) {
+        let i = (y - self.band_start) * self.width + x;
+        (self.own_log[i], self.own_lin[i])
+    }
+
     /// Entry (offset index `o`, pixel (x, y)): the log term and its exp.
     #[inline]
     fn at(&self, o: usize, x: usize, y: usize) -> (f32, f32) {
@@ -286,8 +293,8 @@ impl Pairs {
 
 /// For the run of `log.len()` pixel pairs from plane offsets `center` and `other`: `log` =
 /// −d²·`inv` of each pair's distance d (depth weighted by `depth_weight`) and `lin` its exp, in
-/// one pass. `run` is scratch space
-/// for the distances, at least the run rounded up to whole groups of 8.
+/// one pass. `run` is scratch space for the distances, at least the run rounded up to whole
+/// groups of 8.
 fn pair_terms(
     kernel: Kernel,
     planes: &FeaturePlanes,
@@ -394,9 +401,7 @@ impl<'g> Window<'g> {
         egrid.fill(0.0);
         if let Some(pairs) = pairs {
             if !blocked(i0) {
-                let d = input.features.distance(i0, i0);
-                grid[center] = -(d * d) * inv;
-                egrid[center] = exp_neg(grid[center]);
+                (grid[center], egrid[center]) = pairs.own(x0, y0);
             }
             let inside =
                 |x: isize, y: isize| x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h;
