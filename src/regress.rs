@@ -384,6 +384,9 @@ fn window_sums(
             let known_o = load(known, j);
             let color = c.map(|s| load(s, j));
             let var = load(vr, j);
+            // Read whole before the lanes choose: a choice between `e` and 0 made on the load
+            // itself compiles to a masked load, which keeps the sums below out of registers.
+            let e = *e;
             for l in 0..GROUP {
                 let dot = nc[0][l] * no[0][l] + nc[1][l] * no[1][l] + nc[2][l] * no[2][l];
                 // `|` on bools, not `||`: no branch, so the lanes stay in one register. Two
@@ -408,18 +411,8 @@ fn window_sums(
             }
         }
         let v = dy as f64 / r as f64;
-        let v2 = v * v;
-        for (out, row) in [(&mut sums.a, &t), (&mut sums.m, &m)] {
-            for l in 0..GROUP {
-                let (s0, s1, s2) = (row[0][l] as f64, row[1][l] as f64, row[2][l] as f64);
-                out[S00][l] += s0;
-                out[S01][l] += s1;
-                out[S02][l] += v * s0;
-                out[S11][l] += s2;
-                out[S12][l] += v * s1;
-                out[S22][l] += v2 * s0;
-            }
-        }
+        add_moments(&mut sums.a, t, v);
+        add_moments(&mut sums.m, m, v);
         for k in 0..3 {
             for l in 0..GROUP {
                 let (s0, s1) = (c0[k][l] as f64, c1[k][l] as f64);
@@ -428,6 +421,23 @@ fn window_sums(
                 sums.b[3 * k + 2][l] += v * s0;
             }
         }
+    }
+}
+
+/// Adds a window row's f32 sums of w, w·u and w·u² (row v) to the f64 entries of its symmetric
+/// 3×3 moment matrix. The row is taken by value: a reference to it would keep the tap loop's
+/// sums in memory, stored at every tap.
+#[inline(always)]
+fn add_moments(out: &mut [[f64; GROUP]; 6], row: [[f32; GROUP]; 3], v: f64) {
+    let v2 = v * v;
+    for l in 0..GROUP {
+        let (s0, s1, s2) = (row[0][l] as f64, row[1][l] as f64, row[2][l] as f64);
+        out[S00][l] += s0;
+        out[S01][l] += s1;
+        out[S02][l] += v * s0;
+        out[S11][l] += s2;
+        out[S12][l] += v * s1;
+        out[S22][l] += v2 * s0;
     }
 }
 
