@@ -280,9 +280,10 @@ pub fn estimate_with(kernel: Kernel, color: &Image, features: &FeatureSet) -> Im
         });
     // A pixel of an odd row with no raw estimate among its surface-mates (a line one pixel high)
     // takes its own.
-    let alone: Vec<usize> = (0..w * h)
+    let alone: Vec<usize> = (1..h)
         .into_par_iter()
-        .filter(|&i| (i / w) % 2 == 1 && mates.of(i).all(|j| dof[j] == 0))
+        .step_by(2)
+        .flat_map_iter(|y| (y * w..(y + 1) * w).filter(|&i| mates.of(i).all(|j| dof[j] == 0)))
         .collect();
     let window = raw_window(&mates);
     let own: Vec<([f64; 3], usize)> = alone
