@@ -201,55 +201,79 @@ impl Planes {
             lane.fill(f32::NAN);
         }
         let inv_scale = 2.0 * p.sigma * p.sigma;
+        let demodulate = p.demodulate && inputs.albedo.is_some();
+        // A missing albedo or normal reads as zeros: finite, so it passes the finiteness test as
+        // when it is not tested, and a zero normal is unknown.
+        let zeros = vec![0.0f32; 3 * w];
         for row in 0..rows {
             let y = (y0 + row) as isize - r as isize;
             if y < 0 || y >= h as isize {
                 continue;
             }
+            let i0 = y as usize * w;
+            fn px(img: &Image, i0: usize, w: usize) -> &[f32] {
+                &img.data()[3 * i0..3 * (i0 + w)]
+            }
+            let px = |img| px(img, i0, w);
+            let (noisy, filtered, var) =
+                (px(inputs.noisy), px(inputs.filtered), px(inputs.variance));
+            let albedo = inputs.albedo.map_or(zeros.as_slice(), px);
+            let normal = inputs.normal.map_or(zeros.as_slice(), px);
+            let at = row * stride + r;
+            let mut rows_out = lanes.iter_mut().map(|l| &mut l[at..at + w]);
+            let out: [&mut [f32]; LANES] =
+                std::array::from_fn(|_| rows_out.next().expect("LANES lanes"));
+            // Every value is computed and then chosen by `finite`, with no branch: a pixel with
+            // non-finite inputs keeps the margin's cell (zeros, NaN normals).
             for x in 0..w {
-                let i = y as usize * w + x;
-                let cell = row * stride + x + r;
-                let noisy = inputs.noisy.pixel(i);
-                let filtered = inputs.filtered.pixel(i);
-                let var = inputs.variance.pixel(i);
-                let albedo = inputs.albedo.map(|a| a.pixel(i));
-                let finite = noisy
+                let at3 = |s: &[f32]| -> [f32; 3] { [s[3 * x], s[3 * x + 1], s[3 * x + 2]] };
+                let (nz, fl, vr, al, nm) = (
+                    at3(noisy),
+                    at3(filtered),
+                    at3(var),
+                    at3(albedo),
+                    at3(normal),
+                );
+                let finite = nz
                     .iter()
-                    .chain(filtered)
-                    .chain(var)
-                    .chain(albedo.unwrap_or_default())
+                    .chain(&fl)
+                    .chain(&vr)
+                    .chain(&al)
                     .all(|v| v.is_finite());
-                if !finite {
-                    continue;
-                }
                 let mut v_mean = 0.0f32;
                 for k in 0..3 {
-                    let scale = match albedo {
-                        Some(a) if p.demodulate => a[k].max(0.0) + DEMODULATION_EPS,
-                        _ => 1.0,
+                    let scale = if demodulate {
+                        al[k].max(0.0) + DEMODULATION_EPS
+                    } else {
+                        1.0
                     };
-                    let v = var[k].max(0.0);
+                    let v = vr[k].max(0.0);
                     let limit = p.clip * v.sqrt();
-                    let clipped = filtered[k] + (noisy[k] - filtered[k]).clamp(-limit, limit);
-                    lanes[C + k][cell] = clipped / scale;
-                    lanes[F + k][cell] = filtered[k] / scale;
+                    // `clamp`'s own choices, written as selects.
+                    let d = nz[k] - fl[k];
+                    let d = if d < -limit { -limit } else { d };
+                    let d = if d > limit { limit } else { d };
+                    let pick = |v: f32| if finite { v } else { 0.0 };
+                    out[C + k][x] = pick((fl[k] + d) / scale);
+                    out[F + k][x] = pick(fl[k] / scale);
+                    out[A + k][x] = pick(al[k]);
                     v_mean += v / (scale * scale);
-                    if let Some(a) = albedo {
-                        lanes[A + k][cell] = a[k];
-                    }
                 }
                 v_mean /= 3.0;
-                lanes[V][cell] = v_mean;
-                lanes[INV][cell] = 1.0 / (inv_scale * v_mean + VARIANCE_FLOOR);
-                let normal = inputs
-                    .normal
-                    .map(|n| n.pixel(i))
-                    .filter(|n| n.iter().all(|v| v.is_finite()) && n.iter().any(|&v| v != 0.0));
+                let known = nm.iter().all(|v| v.is_finite()) & nm.iter().any(|&v| v != 0.0);
+                out[V][x] = if finite { v_mean } else { 0.0 };
+                out[INV][x] = if finite {
+                    1.0 / (inv_scale * v_mean + VARIANCE_FLOOR)
+                } else {
+                    0.0
+                };
                 for k in 0..3 {
-                    lanes[N + k][cell] = normal.map_or(0.0, |n| n[k]);
+                    let n = if known { nm[k] } else { 0.0 };
+                    out[N + k][x] = if finite { n } else { f32::NAN };
                 }
-                lanes[KNOWN][cell] = if normal.is_some() { 1.0 } else { 0.0 };
-                lanes[VALID][cell] = 1.0;
+                let k = if known { 1.0 } else { 0.0 };
+                out[KNOWN][x] = if finite { k } else { f32::NAN };
+                out[VALID][x] = if finite { 1.0 } else { 0.0 };
             }
         }
         Planes {
@@ -623,6 +647,114 @@ mod tests {
         assert!((v - 0.01 / 49.0).abs() < 1e-7, "{v}");
         // At a corner only a quarter of the window is there and the fit extrapolates: more.
         assert!(fit.variance[0] > 4.0 * v, "{}", fit.variance[0]);
+    }
+
+    /// A band's planes as the textbook builds them, pixel by pixel with branches: the cell of a
+    /// pixel with a non-finite input is left as the margin's.
+    fn textbook_planes(inputs: Inputs, p: &Params, y0: usize, y1: usize) -> Vec<Vec<f32>> {
+        let (w, h) = inputs.noisy.dims();
+        let r = p.radius;
+        let stride = w + 2 * r + 8;
+        let rows = y1 - y0 + 2 * r;
+        let mut lanes = vec![vec![0.0f32; stride * rows + ROW]; LANES];
+        for lane in &mut lanes[N..=KNOWN] {
+            lane.fill(f32::NAN);
+        }
+        for row in 0..rows {
+            let y = (y0 + row) as isize - r as isize;
+            if y < 0 || y >= h as isize {
+                continue;
+            }
+            for x in 0..w {
+                let (i, cell) = (y as usize * w + x, row * stride + x + r);
+                let (noisy, filtered) = (inputs.noisy.pixel(i), inputs.filtered.pixel(i));
+                let var = inputs.variance.pixel(i);
+                let albedo = inputs.albedo.map(|a| a.pixel(i));
+                let all = noisy.iter().chain(filtered).chain(var);
+                if !all.chain(albedo.unwrap_or_default()).all(|v| v.is_finite()) {
+                    continue;
+                }
+                let mut v_mean = 0.0f32;
+                for k in 0..3 {
+                    let scale = match albedo {
+                        Some(a) if p.demodulate => a[k].max(0.0) + DEMODULATION_EPS,
+                        _ => 1.0,
+                    };
+                    let v = var[k].max(0.0);
+                    let limit = p.clip * v.sqrt();
+                    let clipped = filtered[k] + (noisy[k] - filtered[k]).clamp(-limit, limit);
+                    lanes[C + k][cell] = clipped / scale;
+                    lanes[F + k][cell] = filtered[k] / scale;
+                    v_mean += v / (scale * scale);
+                    lanes[A + k][cell] = albedo.map_or(0.0, |a| a[k]);
+                }
+                v_mean /= 3.0;
+                lanes[V][cell] = v_mean;
+                lanes[INV][cell] = 1.0 / (2.0 * p.sigma * p.sigma * v_mean + VARIANCE_FLOOR);
+                let normal = inputs
+                    .normal
+                    .map(|n| n.pixel(i))
+                    .filter(|n| n.iter().all(|v| v.is_finite()) && n.iter().any(|&v| v != 0.0));
+                for k in 0..3 {
+                    lanes[N + k][cell] = normal.map_or(0.0, |n| n[k]);
+                }
+                lanes[KNOWN][cell] = if normal.is_some() { 1.0 } else { 0.0 };
+                lanes[VALID][cell] = 1.0;
+            }
+        }
+        lanes
+    }
+
+    #[test]
+    fn planes_are_the_textbook_cells_bit_for_bit_with_bad_inputs() {
+        // Random inputs with NaN, ±∞, negative variances, zero normals and black albedo in every
+        // buffer; with and without albedo and normals, demodulated or not; bands at both edges.
+        let mut next = crate::trim::tests::xorshift(7);
+        let (w, h) = (23, 29);
+        let mut value = |scale: f32| {
+            let r = next();
+            match r % 23 {
+                0 => f32::NAN,
+                1 => f32::INFINITY,
+                2 => f32::NEG_INFINITY,
+                3 => 0.0,
+                4 => -scale * (r >> 40) as f32 / (1u64 << 24) as f32,
+                _ => scale * (r >> 40) as f32 / (1u64 << 24) as f32,
+            }
+        };
+        let mut image = |scale: f32| Image::from_fn(w, h, 3, |_, _, _| value(scale));
+        let (noisy, filtered, variance) = (image(2.0), image(2.0), image(0.1));
+        let (albedo, normal) = (image(1.0), image(1.0));
+        for (with_features, demodulate, (y0, y1)) in [
+            (true, true, (0, 8)),
+            (true, false, (8, 16)),
+            (false, true, (21, 29)),
+            (false, false, (0, 29)),
+        ] {
+            let inputs = Inputs {
+                noisy: &noisy,
+                filtered: &filtered,
+                variance: &variance,
+                albedo: with_features.then_some(&albedo),
+                normal: with_features.then_some(&normal),
+            };
+            let p = Params {
+                demodulate,
+                radius: 3,
+                ..Params::default()
+            };
+            let planes = Planes::build(inputs, &p, y0, y1);
+            let textbook = textbook_planes(inputs, &p, y0, y1);
+            for (l, (got, want)) in planes.lanes.iter().zip(&textbook).enumerate() {
+                for (cell, (g, t)) in got.iter().zip(want).enumerate() {
+                    assert_eq!(
+                        g.to_bits(),
+                        t.to_bits(),
+                        "lane {l}, cell {cell}: {g} vs {t}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]
