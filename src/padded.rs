@@ -42,15 +42,25 @@ impl Padded {
                     .enumerate()
                     .for_each(|(row, cells)| {
                         let y = row as isize - m;
-                        if fill == Margin::Zeros && !(0..hi).contains(&y) {
+                        let inside_row = (0..hi).contains(&y);
+                        if fill == Margin::Zeros && !inside_row {
                             return;
                         }
-                        for (col, v) in cells.iter_mut().enumerate() {
-                            let x = col as isize - m;
-                            let inside = (0..wi).contains(&x) && (0..hi).contains(&y);
-                            if inside || fill == Margin::Edge {
-                                let (x, y) = (x.clamp(0, wi - 1), y.clamp(0, hi - 1));
-                                *v = value((y * wi + x) as usize, k);
+                        // The image's own cells of the row first, with no test per cell; then
+                        // the margin's, which `Edge` fills from the nearest pixel.
+                        if inside_row {
+                            let first = y as usize * w;
+                            for (x, v) in cells[margin..margin + w].iter_mut().enumerate() {
+                                *v = value(first + x, k);
+                            }
+                        }
+                        if fill == Margin::Edge {
+                            let y = y.clamp(0, hi - 1);
+                            for (col, v) in cells.iter_mut().enumerate() {
+                                let x = col as isize - m;
+                                if !((0..wi).contains(&x) && inside_row) {
+                                    *v = value((y * wi + x.clamp(0, wi - 1)) as usize, k);
+                                }
                             }
                         }
                     });
