@@ -311,7 +311,15 @@ pub fn detect(color: &Image, guides: &Guides, params: &DetectParams) -> Detectio
     let p = *params;
     let surface = (p.rule == Rule::Feature && guides.any() && p.radius <= BITS_RADIUS)
         .then(|| surface_bits(guides, &p, w, h));
-    let surface = surface.as_deref();
+    // Each window bit's pixel offset, so a neighbour's index costs no division.
+    let side = 2 * p.radius + 1;
+    let offsets: Vec<isize> = (0..side * side)
+        .map(|b| {
+            ((b / side) as isize - p.radius as isize) * w as isize + (b % side) as isize
+                - p.radius as isize
+        })
+        .collect();
+    let surface = surface.as_deref().map(|bits| (bits, offsets.as_slice()));
     limit.par_chunks_mut(w).enumerate().for_each_init(
         Vec::new,
         |scratch: &mut Vec<f32>, (y, row)| {
@@ -329,7 +337,7 @@ pub fn detect(color: &Image, guides: &Guides, params: &DetectParams) -> Detectio
 fn pixel_limit(
     key: &[f32],
     guides: &Guides,
-    surface: Option<&[u64]>,
+    surface: Option<(&[u64], &[isize])>,
     p: &DetectParams,
     x: usize,
     y: usize,
@@ -372,15 +380,13 @@ fn pixel_limit(
             }
         }
         Rule::Feature => {
-            if let Some(bits) = surface {
+            if let Some((bits, offsets)) = surface {
                 // The same neighbours in the same (raster) order as the test below.
-                let (side, r) = (2 * p.radius + 1, p.radius as isize);
                 let mut m = bits[i];
                 while m != 0 {
                     let b = m.trailing_zeros() as usize;
                     m &= m - 1;
-                    let (dx, dy) = ((b % side) as isize - r, (b / side) as isize - r);
-                    scratch.push(key[(i as isize + dy * w as isize + dx) as usize]);
+                    scratch.push(key[(i as isize + offsets[b]) as usize]);
                 }
             } else if guides.any() {
                 scratch.extend(window(x, y, p.radius, w, h).filter_map(|j| {
