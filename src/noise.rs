@@ -615,7 +615,6 @@ fn smooth(
         .par_chunks_mut(3)
         .enumerate()
         .for_each(|(i, px)| {
-            let (x, y) = (i % w, i / w);
             let mut acc = [0.0f64; 3];
             let mut dof = 0usize;
             for j in mates.of(i) {
@@ -632,6 +631,7 @@ fn smooth(
                 let s = surface.scale(i);
                 std::array::from_fn(|k| acc[k] / dof as f64 * s[k] * s[k])
             } else {
+                let (x, y) = (i % w, i / w);
                 let mut near = [0usize; 9];
                 let mut n = 0;
                 for j in window(x, y, w, h, 1) {
@@ -749,7 +749,8 @@ pub fn tone_level(color: &Image, variance: &Image, exposure: f32) -> f64 {
 
 /// Radius of the window the blend's error estimate averages over (5×5).
 const BLEND_RADIUS: isize = trim::RADIUS;
-const BLEND_TAPS: usize = (2 * BLEND_RADIUS as usize + 1).pow(2);
+const BLEND_SIDE: usize = 2 * BLEND_RADIUS as usize + 1;
+const BLEND_TAPS: usize = BLEND_SIDE * BLEND_SIDE;
 
 /// Per pixel, how much of `filtered` to keep over `color` (0..1): the Wiener weight
 /// v / (v + b²) of a filter with bias b on a pixel of noise variance v. E[(f − c)²] ≈ b² + v, so
@@ -834,6 +835,10 @@ fn blend_errors<const L: usize>(
     w: usize,
 ) -> [(f64, usize); L] {
     let r = BLEND_RADIUS;
+    debug_assert_eq!(
+        mates.side, BLEND_SIDE,
+        "the blend's mates are of its own window"
+    );
     let mut bits = [0u64; L];
     bits.copy_from_slice(&mates.bits[y * w + x..y * w + x + L]);
     let plane = &diff2.planes[0];
@@ -841,9 +846,10 @@ fn blend_errors<const L: usize>(
     let mut values = [[0.0f64; L]; BLEND_TAPS];
     let mut n = [0usize; L];
     for (cell, value) in values.iter_mut().enumerate() {
+        // A constant side: the cell's offset costs no division.
         let (dx, dy) = (
-            (cell % mates.side) as isize - r,
-            (cell / mates.side) as isize - r,
+            (cell % BLEND_SIDE) as isize - r,
+            (cell / BLEND_SIDE) as isize - r,
         );
         let at = diff2.at(x, y, (dx, dy));
         for l in 0..L {
