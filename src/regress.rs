@@ -188,11 +188,10 @@ struct Planes {
 }
 
 impl Planes {
-    fn build(inputs: Inputs, p: &Params, y0: usize, y1: usize) -> Planes {
-        let (w, h) = inputs.noisy.dims();
-        let r = p.radius;
+    /// Lanes of `rows` rows for an image `w` wide and a window of radius `r`, every cell as the
+    /// margin's (zeros, NaN normals), and their stride.
+    fn blank(w: usize, r: usize, rows: usize) -> (Vec<Vec<f32>>, usize) {
         let stride = w + 2 * r + 8;
-        let rows = y1 - y0 + 2 * r;
         // Past the last row, room for a whole `ROW` read from any window row's first cell.
         let mut lanes = vec![vec![0.0f32; stride * rows + ROW]; LANES];
         // A cell that takes no part matches no pixel's normal: its NaNs fail both tests of
@@ -200,6 +199,14 @@ impl Planes {
         for lane in &mut lanes[N..=KNOWN] {
             lane.fill(f32::NAN);
         }
+        (lanes, stride)
+    }
+
+    fn build(inputs: Inputs, p: &Params, y0: usize, y1: usize) -> Planes {
+        let (w, h) = inputs.noisy.dims();
+        let r = p.radius;
+        let rows = y1 - y0 + 2 * r;
+        let (mut lanes, stride) = Planes::blank(w, r, rows);
         let inv_scale = 2.0 * p.sigma * p.sigma;
         let demodulate = p.demodulate && inputs.albedo.is_some();
         // A missing albedo or normal reads as zeros: finite, so it passes the finiteness test as
@@ -654,12 +661,8 @@ mod tests {
     fn textbook_planes(inputs: Inputs, p: &Params, y0: usize, y1: usize) -> Vec<Vec<f32>> {
         let (w, h) = inputs.noisy.dims();
         let r = p.radius;
-        let stride = w + 2 * r + 8;
         let rows = y1 - y0 + 2 * r;
-        let mut lanes = vec![vec![0.0f32; stride * rows + ROW]; LANES];
-        for lane in &mut lanes[N..=KNOWN] {
-            lane.fill(f32::NAN);
-        }
+        let (mut lanes, stride) = Planes::blank(w, r, rows);
         for row in 0..rows {
             let y = (y0 + row) as isize - r as isize;
             if y < 0 || y >= h as isize {
