@@ -183,17 +183,10 @@ struct Mates {
 
 impl Mates {
     fn new(w: usize, radius: usize) -> Self {
-        let side = 2 * radius + 1;
-        let r = radius as isize;
-        let offset = (0..side * side)
-            .map(|b| (b / side) as isize - r)
-            .zip((0..side * side).map(|b| (b % side) as isize - r))
-            .map(|(dy, dx)| dy * w as isize + dx)
-            .collect();
         Mates {
             bits: Vec::new(),
-            side,
-            offset,
+            side: 2 * radius + 1,
+            offset: window_bits::offsets(w, radius),
         }
     }
 

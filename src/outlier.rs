@@ -309,17 +309,16 @@ pub fn detect(color: &Image, guides: &Guides, params: &DetectParams) -> Detectio
         Rule::Percentile => lum.clone(),
     };
     let p = *params;
-    let surface = (p.rule == Rule::Feature && guides.any() && p.radius <= BITS_RADIUS)
-        .then(|| surface_bits(guides, &p, w, h));
-    // Each window bit's pixel offset, so a neighbour's index costs no division.
-    let side = 2 * p.radius + 1;
-    let offsets: Vec<isize> = (0..side * side)
-        .map(|b| {
-            ((b / side) as isize - p.radius as isize) * w as isize + (b % side) as isize
-                - p.radius as isize
-        })
-        .collect();
-    let surface = surface.as_deref().map(|bits| (bits, offsets.as_slice()));
+    // With each window bit's pixel offset, so a neighbour's index costs no division.
+    let surface = (p.rule == Rule::Feature && guides.any() && p.radius <= BITS_RADIUS).then(|| {
+        (
+            surface_bits(guides, &p, w, h),
+            crate::window_bits::offsets(w, p.radius),
+        )
+    });
+    let surface = surface
+        .as_ref()
+        .map(|(bits, offsets)| (bits.as_slice(), offsets.as_slice()));
     limit.par_chunks_mut(w).enumerate().for_each_init(
         Vec::new,
         |scratch: &mut Vec<f32>, (y, row)| {

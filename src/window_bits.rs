@@ -19,6 +19,15 @@ pub(crate) const MOST_RADIUS: usize = 3;
 /// rows and the window's reach below them, so no copy of the whole image's features is held.
 const BAND_ROWS: usize = 16;
 
+/// The pixel index offset of every bit's cell in a window of `radius` over an image `w` wide, bits
+/// in raster order of the window: what a set bit of [`window_bits`] points at.
+pub(crate) fn offsets(w: usize, radius: usize) -> Vec<isize> {
+    let (r, side) = (radius as isize, 2 * radius + 1);
+    (0..side * side)
+        .map(|b| ((b / side) as isize - r) * w as isize + (b % side) as isize - r)
+        .collect()
+}
+
 /// The bits of a `w`×`h` image's windows of `radius`. `band(rows)` gives what the test reads
 /// for a range of rows; `forward(data, i0, j0, bit, out)` sets `bit` of `out[t]` where pixels
 /// i0 + t and j0 + t pass the test (j0 the neighbour at that bit's cell), both indices counted
