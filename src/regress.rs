@@ -212,16 +212,16 @@ impl Planes {
         // A missing albedo or normal reads as zeros: finite, so it passes the finiteness test as
         // when it is not tested, and a zero normal is unknown.
         let zeros = vec![0.0f32; 3 * w];
+        fn row_of(img: &Image, i0: usize, w: usize) -> &[f32] {
+            &img.data()[3 * i0..3 * (i0 + w)]
+        }
         for row in 0..rows {
             let y = (y0 + row) as isize - r as isize;
             if y < 0 || y >= h as isize {
                 continue;
             }
             let i0 = y as usize * w;
-            fn px(img: &Image, i0: usize, w: usize) -> &[f32] {
-                &img.data()[3 * i0..3 * (i0 + w)]
-            }
-            let px = |img| px(img, i0, w);
+            let px = |img| row_of(img, i0, w);
             let (noisy, filtered, var) =
                 (px(inputs.noisy), px(inputs.filtered), px(inputs.variance));
             let albedo = inputs.albedo.map_or(zeros.as_slice(), px);
@@ -247,6 +247,7 @@ impl Planes {
                     .chain(&vr)
                     .chain(&al)
                     .all(|v| v.is_finite());
+                let pick = |v: f32| if finite { v } else { 0.0 };
                 let mut v_mean = 0.0f32;
                 for k in 0..3 {
                     let scale = if demodulate {
@@ -260,7 +261,6 @@ impl Planes {
                     let d = nz[k] - fl[k];
                     let d = if d < -limit { -limit } else { d };
                     let d = if d > limit { limit } else { d };
-                    let pick = |v: f32| if finite { v } else { 0.0 };
                     out[C + k][x] = pick((fl[k] + d) / scale);
                     out[F + k][x] = pick(fl[k] / scale);
                     out[A + k][x] = pick(al[k]);
@@ -268,19 +268,15 @@ impl Planes {
                 }
                 v_mean /= 3.0;
                 let known = nm.iter().all(|v| v.is_finite()) & nm.iter().any(|&v| v != 0.0);
-                out[V][x] = if finite { v_mean } else { 0.0 };
-                out[INV][x] = if finite {
-                    1.0 / (inv_scale * v_mean + VARIANCE_FLOOR)
-                } else {
-                    0.0
-                };
+                out[V][x] = pick(v_mean);
+                out[INV][x] = pick(1.0 / (inv_scale * v_mean + VARIANCE_FLOOR));
                 for k in 0..3 {
                     let n = if known { nm[k] } else { 0.0 };
                     out[N + k][x] = if finite { n } else { f32::NAN };
                 }
                 let k = if known { 1.0 } else { 0.0 };
                 out[KNOWN][x] = if finite { k } else { f32::NAN };
-                out[VALID][x] = if finite { 1.0 } else { 0.0 };
+                out[VALID][x] = pick(1.0);
             }
         }
         Planes {
