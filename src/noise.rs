@@ -773,35 +773,51 @@ pub fn keep_weights(
             .sum::<f64>()
             / 3.0
     });
-    let mut err = par_vec((0.0, 0), w * h);
-    err.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, out)| {
-        let (diff2, mates) = (&diff2, &mates);
-        row_kernel!(kernel, blend_error_row(diff2: &Padded, mates: &Mates, y: usize, out: &mut [(f64, usize)]))
-    });
-    (0..w * h)
-        .into_par_iter()
-        .map(|i| {
-            let var = (0..3).map(|k| clean(v[3 * i + k])).sum::<f64>() / 3.0;
-            let (err, n) = err[i];
-            if var <= 0.0 || n == 0 {
-                return 0.0;
+    // Row by row, the error estimates into a row of the thread's own, then the weights: no
+    // whole-image table of them (16 bytes a pixel) when the blend is the run's last stage.
+    let mut keep = par_vec(0.0f32, w * h);
+    keep.par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each_init(Vec::new, |row, (y, keep)| {
+            row.resize(keep.len(), (0.0, 0));
+            let (diff2, mates, out) = (&diff2, &mates, row.as_mut_slice());
+            row_kernel!(kernel, blend_error_row(diff2: &Padded, mates: &Mates, y: usize, out: &mut [(f64, usize)]));
+            for (x, (keep, &(err, n))) in keep.iter_mut().zip(row.iter()).enumerate() {
+                let i = y * w + x;
+                *keep = keep_weight(&c[3 * i..3 * i + 3], &f[3 * i..3 * i + 3], &v[3 * i..3 * i + 3], err, n, tolerance, leak);
             }
-            // Divided by the constant of its own n: with few mates, as at a geometric edge,
-            // little is trimmed.
-            let err = err / trimmed_chi2(n);
-            let keep = (tolerance * var / err.max(f64::MIN_POSITIVE)).min(1.0);
-            // A pixel the filter made far brighter than its own noise allows took light from a
-            // neighbour the features could not tell apart (an emitter beside the ceiling it lies
-            // in): trimmed away above, so checked alone. Darker is left alone: that is a firefly
-            // removed.
-            let gain = (0..3)
-                .map(|k| (f[3 * i + k] as f64 - c[3 * i + k] as f64).max(0.0).powi(2))
-                .sum::<f64>()
-                / 3.0;
-            let leak = leak * var / gain.max(f64::MIN_POSITIVE);
-            keep.min(leak).min(1.0) as f32
-        })
-        .collect()
+        });
+    keep
+}
+
+/// One pixel's weight of [`keep_weights`]: its colour `c`, filtered value `f`, noise variance
+/// `v`, and the trimmed mean `err` of (f − c)² over its `n` surface-mates.
+fn keep_weight(
+    c: &[f32],
+    f: &[f32],
+    v: &[f32],
+    err: f64,
+    n: usize,
+    tolerance: f64,
+    leak: f64,
+) -> f32 {
+    let var = v.iter().map(|&x| clean(x)).sum::<f64>() / 3.0;
+    if var <= 0.0 || n == 0 {
+        return 0.0;
+    }
+    // Divided by the constant of its own n: with few mates, as at a geometric edge, little is
+    // trimmed.
+    let err = err / trimmed_chi2(n);
+    let keep = (tolerance * var / err.max(f64::MIN_POSITIVE)).min(1.0);
+    // A pixel the filter made far brighter than its own noise allows took light from a neighbour
+    // the features could not tell apart (an emitter beside the ceiling it lies in): trimmed away
+    // above, so checked alone. Darker is left alone: that is a firefly removed.
+    let gain = (0..3)
+        .map(|k| (f[k] as f64 - c[k] as f64).max(0.0).powi(2))
+        .sum::<f64>()
+        / 3.0;
+    let leak = leak * var / gain.max(f64::MIN_POSITIVE);
+    keep.min(leak).min(1.0) as f32
 }
 
 /// Most of the blend's values trimmed: `TRIM` of its window.
