@@ -208,14 +208,12 @@ pub enum BlendDomain {
 const LOG_EPS: f32 = 0.1;
 
 impl BlendDomain {
-    fn forward(self, img: &Image) -> Image {
-        let mut out = img.clone();
+    fn forward(self, img: &mut Image) {
         if self == BlendDomain::Log {
-            out.data_mut()
+            img.data_mut()
                 .par_chunks_mut(1 << 14)
                 .for_each(|c| c.iter_mut().for_each(|v| *v = (v.max(0.0) + LOG_EPS).ln()));
         }
-        out
     }
 
     fn inverse(self, img: &mut Image) {
@@ -405,8 +403,9 @@ fn clamp_in_bands(img: &mut Image, guide: &Image, r: usize, band_rows: usize) {
 /// C = T(R_{l+1}) − T(REDUCE(D_l)); with `guided`, C is expanded by [`guided_expand`]. REDUCE is the
 /// linear one that built the pyramid, so an untouched pyramid (R_{l+1} = REDUCE(D_l), C = 0) gives back
 /// D_0 in every mode. `band_weights[l]` (default 1) scales the detail band of level l.
+/// The levels are taken, not borrowed: each is brought into the blend domain in its own memory.
 pub fn blend(
-    d: &[Image],
+    mut d: Vec<Image>,
     band_weights: &[f32],
     domain: BlendDomain,
     guided: bool,
@@ -416,17 +415,19 @@ pub fn blend(
         .len()
         .checked_sub(1)
         .ok_or_else(|| Error::Runtime("blend of no levels".into()))?;
+    let mut r = d.pop().expect("at least one level");
     if last == 0 {
         // One level is its own reconstruction (R_0 = D_0): no round trip through the blend domain.
-        let mut r = d[0].clone();
         r.data_mut().iter_mut().for_each(|v| *v = v.max(0.0));
         return Ok(r);
     }
-    let mut r = domain.forward(&d[last]);
+    domain.forward(&mut r);
     for l in (0..last).rev() {
-        let (w, h) = d[l].dims();
-        let reduced = domain.forward(&reduce(&d[l])?);
-        let fine = domain.forward(&d[l]);
+        let mut fine = d.pop().expect("one image per level");
+        let (w, h) = fine.dims();
+        let mut reduced = reduce(&fine)?;
+        domain.forward(&mut reduced);
+        domain.forward(&mut fine);
         let mut correction = r;
         for (v, &lo) in correction.data_mut().iter_mut().zip(reduced.data()) {
             *v -= lo;
@@ -531,7 +532,7 @@ mod tests {
                 (BlendDomain::Log, false),
                 (BlendDomain::Log, true),
             ] {
-                let out = blend(&levels_imgs, &[], domain, guided, Some(1)).unwrap();
+                let out = blend(levels_imgs.clone(), &[], domain, guided, Some(1)).unwrap();
                 let max_rel = out
                     .data()
                     .iter()

@@ -86,7 +86,7 @@ mod levels {
 
     pub fn blend_two(fine: &Image, coarse: &Image, guided: bool) -> Image {
         blend(
-            &[fine.clone(), coarse.clone()],
+            vec![fine.clone(), coarse.clone()],
             &[],
             BlendDomain::Linear,
             guided,

@@ -207,14 +207,14 @@ impl Stage for PyramidStage {
         }
         let out_name = self.level_output();
         let saved_level = ctx.level;
+        // Coarsest level first: each coarse level's buffers are dropped once its result is taken,
+        // so level 0, whose walks hold the most, runs beside none of them. No level reads
+        // another's results (each draws its own random numbers), so the order changes no bit.
         let mut denoised = Vec::with_capacity(n);
-        for l in 0..n {
+        for l in (0..n).rev() {
             ctx.level = saved_level + l as u32;
-            let level_buffers: &mut Buffers = if l == 0 {
-                &mut *buffers
-            } else {
-                &mut coarse[l - 1]
-            };
+            let mut own = (l > 0).then(|| coarse.pop().expect("one coarse set per level"));
+            let level_buffers: &mut Buffers = own.as_mut().unwrap_or(&mut *buffers);
             for stage in &self.levels[l] {
                 stage.execute(level_buffers, ctx)?;
             }
@@ -228,10 +228,10 @@ impl Stage for PyramidStage {
                 level_buffers.require(&out_name)?.clone()
             });
         }
+        denoised.reverse();
         ctx.level = saved_level;
-        drop(coarse);
         let out = pyramid::blend(
-            &denoised,
+            denoised,
             &self.params.blend,
             self.params.domain,
             self.params.guided,
