@@ -957,6 +957,32 @@ mod tests {
         )
     }
 
+    /// Where the filter hit the mean of a flat surface it removed only noise: the trimmed mean of
+    /// (f − c)², divided by its own χ² constant, reads the noise variance v, so with tolerance 0.5
+    /// the weight is about 0.5 · v / v. Without the constant it reads under half of v, and the
+    /// weight 1. The channels share one noise value per pixel, as a render's mostly do.
+    #[test]
+    fn a_noise_only_change_reads_the_noise_variance() {
+        let (w, h, std) = (64, 64, 0.1f32);
+        let shared = noisy_flat(w, h, 1.0, std, 5);
+        let color = Image::from_fn(w, h, 3, |x, y, _| shared.pixel(y * w + x)[0]);
+        let filtered = Image::filled(w, h, 3, 1.0);
+        let variance = Image::filled(w, h, 3, std * std);
+        let set = FeatureSet::default();
+        let mut keep = keep_weights(
+            Kernel::detect(),
+            &color,
+            &filtered,
+            &variance,
+            &set,
+            0.5,
+            1e9,
+        );
+        keep.sort_by(f32::total_cmp);
+        let median = keep[keep.len() / 2];
+        assert!((0.4..=0.65).contains(&median), "median weight {median}");
+    }
+
     #[test]
     fn a_rise_beyond_two_sigma_is_taken_back() {
         let (color, _, _) = blend_case();
