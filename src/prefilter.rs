@@ -340,18 +340,22 @@ fn filter_by(
         k2: p.strength * p.strength,
         // A patch cell beyond the image reads the nearest edge pixel: with a margin that repeats
         // it, every offset's terms are one contiguous run of both patches' cells.
-        planes: Padded::new((w, h), c + 2, (r + f) as usize, Margin::Edge, |i, k| {
-            if k < c {
-                data[i * c + k] as f64
-            } else if k == c {
-                variance[i] as f64
-            } else {
-                match kind {
-                    Kind::Depth => (EPS * (data[i] as f64).powi(2)).max(f64::MIN_POSITIVE),
-                    Kind::Plain | Kind::Normal => EPS,
+        // ε is a plane of its own for depth only; elsewhere it is the constant EPS.
+        planes: Padded::new(
+            (w, h),
+            c + 1 + usize::from(kind == Kind::Depth),
+            (r + f) as usize,
+            Margin::Edge,
+            |i, k| {
+                if k < c {
+                    data[i * c + k] as f64
+                } else if k == c {
+                    variance[i] as f64
+                } else {
+                    (EPS * (data[i] as f64).powi(2)).max(f64::MIN_POSITIVE)
                 }
-            }
-        }),
+            },
+        ),
     };
     let mut out = img.par_clone();
     out.data_mut()
@@ -380,8 +384,32 @@ struct NlMeans {
     f: isize,
     /// k².
     k2: f64,
-    /// Edge-padded planes: the channels, then the variance, then ε.
+    /// Edge-padded planes: the channels, then the variance, then (depth only) ε.
     planes: Padded,
+}
+
+impl NlMeans {
+    /// The ε plane, where ε differs from pixel to pixel (depth); `None` where it is EPS.
+    fn eps(&self) -> Option<&[f64]> {
+        self.planes.planes.get(self.dims.2 + 1).map(Vec::as_slice)
+    }
+}
+
+/// A row of patch terms from the channels' squared differences `row` to
+/// (row − c·(v_a + min(v_a, v_b))) / (ε_a + k²(v_a + v_b)), the patch distance's terms.
+#[inline(always)]
+fn scale_terms(
+    row: &mut [f64],
+    (va, vb): (&[f64], &[f64]),
+    ea: impl Iterator<Item = f64>,
+    c: f64,
+    k2: f64,
+) {
+    for (((t, &va), &vb), ea) in row.iter_mut().zip(va).zip(vb).zip(ea) {
+        let expected = va + if vb < va { vb } else { va };
+        let scale = ea + k2 * (va + vb);
+        *t = (*t - c * expected) / scale;
+    }
 }
 
 /// Filters the `BAND` rows of band `band` into `rows`. Every loop runs over a contiguous run of
@@ -392,7 +420,7 @@ fn filter_band(nl: &NlMeans, band: usize, rows: &mut [f32]) {
     let ((w, h, c), (r, f), k2) = (nl.dims, (nl.r, nl.f), nl.k2);
     let (known, active, kind, kernel) = (&nl.known, &nl.active, nl.kind, nl.kernel);
     let edge = &nl.planes;
-    let (chans, var, eps) = (&edge.planes[..c], &edge.planes[c], &edge.planes[c + 1]);
+    let (chans, var, eps) = (&edge.planes[..c], &edge.planes[c], nl.eps());
     let terms = ((2 * f + 1) * (2 * f + 1)) as f64 * c as f64;
     let y0 = band * BAND;
     let y1 = (y0 + BAND).min(h);
@@ -437,11 +465,10 @@ fn filter_band(nl: &NlMeans, band: usize, rows: &mut [f32]) {
                         *t += d * d;
                     }
                 }
-                let (va, vb, ea) = (&var[a..a + tw], &var[b..b + tw], &eps[a..a + tw]);
-                for (((t, &va), &vb), &ea) in row.iter_mut().zip(va).zip(vb).zip(ea) {
-                    let expected = va + if vb < va { vb } else { va };
-                    let scale = ea + k2 * (va + vb);
-                    *t = (*t - c as f64 * expected) / scale;
+                let v = (&var[a..a + tw], &var[b..b + tw]);
+                match eps {
+                    Some(eps) => scale_terms(row, v, eps[a..].iter().copied(), c as f64, k2),
+                    None => scale_terms(row, v, std::iter::repeat(EPS), c as f64, k2),
                 }
             }
             for (row, acc) in term.chunks_exact(tw).zip(across.chunks_exact_mut(n)) {
@@ -614,7 +641,7 @@ fn patch_distances<const L: usize>(
 ) -> [f64; L] {
     let (c, f, k2) = (nl.dims.2, nl.f, nl.k2);
     let edge = &nl.planes;
-    let (chans, var, eps) = (&edge.planes[..c], &edge.planes[c], &edge.planes[c + 1]);
+    let (chans, var, eps) = (&edge.planes[..c], &edge.planes[c], nl.eps());
     let side = 2 * f as usize + 1;
     let mut dist = [-0.0f64; L];
     for dy in -f..=f {
@@ -632,7 +659,8 @@ fn patch_distances<const L: usize>(
         }
         let mut sum = [-0.0f64; L];
         for (col, t) in t[..side].iter().enumerate() {
-            let (va, ea, vb) = (var[a + col], eps[a + col], &var[b + col..b + col + L]);
+            let ea = eps.map_or(EPS, |eps| eps[a + col]);
+            let (va, vb) = (var[a + col], &var[b + col..b + col + L]);
             for l in 0..L {
                 let expected = va + if vb[l] < va { vb[l] } else { va };
                 let scale = ea + k2 * (va + vb[l]);
