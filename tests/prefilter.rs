@@ -356,3 +356,32 @@ fn both_kernels_give_the_same_bits() {
         }
     }
 }
+
+/// Depth's ε is relative to the pixel's depth (ε·z²), so filtering depth in metres or in
+/// millimetres gives the same surface: the result scales with its input. With one ε for every
+/// depth, noise far below it (here 0.003 around 1) would average freely in metres and by its own
+/// variance in millimetres.
+#[test]
+fn depth_filters_the_same_in_any_unit() {
+    let (w, h) = (24, 16);
+    let mut u = uniforms(11);
+    let metres = Image::from_fn(w, h, 1, |x, _, _| {
+        let z = if x < w / 2 { 1.0 } else { 1.5 };
+        z + 0.003 * (u() - 0.5)
+    });
+    let filtered = |img: &Image| {
+        let v = prefilter::variance(img, Kind::Depth, params().keep);
+        prefilter::filter(img, &v, Kind::Depth, &params())
+    };
+    let mut millimetres = metres.clone();
+    millimetres.data_mut().iter_mut().for_each(|z| *z *= 1000.0);
+    let (a, b) = (filtered(&metres), filtered(&millimetres));
+    let worst = a
+        .data()
+        .iter()
+        .zip(b.data())
+        .map(|(&m, &mm)| ((mm / 1000.0 - m) / m).abs())
+        .fold(0.0f32, f32::max);
+    assert!(worst < 1e-5, "relative difference {worst}");
+    assert_ne!(a.data(), metres.data(), "the noise was filtered");
+}
