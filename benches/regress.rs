@@ -1,6 +1,6 @@
 //! The `regress` stage's kernel (docs/ALGORITHM.md §9): the first-order fit and the mix, pixels
-//! per second on a 4 spp fixture, with the kernel this CPU runs (AVX2 where it has it) and the
-//! portable one (the same bits), at the presets' radius and a smaller one.
+//! per second on a 4 spp fixture, with every kernel this CPU runs (portable, AVX2, AVX-512; the
+//! same bits), at the presets' radius and a smaller one.
 //!
 //! Run: `cargo bench --bench regress`.
 
@@ -32,8 +32,8 @@ fn bench_regress(c: &mut Criterion) {
             radius,
             ..preset.clone()
         };
-        for (name, kernel) in [("", Kernel::detect()), (" (portable)", Kernel::Scalar)] {
-            group.bench_function(format!("radius {radius}{name}"), |b| {
+        for kernel in Kernel::ALL.into_iter().filter(|k| k.is_available()) {
+            group.bench_function(format!("radius {radius} {kernel:?}"), |b| {
                 b.iter(|| regress::refine_with(kernel, inputs, &p))
             });
         }

@@ -228,7 +228,7 @@ fn tap_run(
 
 /// A run's differences `e` turned into exp(−d²·inv), in place.
 fn weigh(kernel: Kernel, e: &mut [f32], inv: f32) {
-    row_kernel!(kernel, scale_distances(e: &mut [f32], inv: f32));
+    row_kernel!(wide kernel, scale_distances(e: &mut [f32], inv: f32));
     exp_neg_row(kernel, e);
 }
 
@@ -251,7 +251,7 @@ fn add_tap(
     );
     let (keep, keep_center) = (cols.lane(3, other, n), cols.lane(3, center, n));
     let (colour, keep) = ([red, green, blue], [keep, keep_center]);
-    row_kernel!(kernel, accumulate(e: &[f32], tap: f32, colour: [&[f32]; 3], keep: [&[f32]; 2], acc: AccRange))
+    row_kernel!(wide kernel, accumulate(e: &[f32], tap: f32, colour: [&[f32]; 3], keep: [&[f32]; 2], acc: AccRange))
 }
 
 /// −d²·inv in place: the exponent of a tap's weight.

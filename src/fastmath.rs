@@ -55,8 +55,8 @@ pub fn exp_neg(x: f32) -> f32 {
 pub fn exp_neg_row(kernel: crate::simd::Kernel, v: &mut [f32]) {
     let done = match kernel.or_portable() {
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: or_portable returns Avx2 only when the CPU has it.
-        crate::simd::Kernel::Avx2 => unsafe { avx2::exp_neg_row(v) },
+        // SAFETY: or_portable returns Avx2 or Avx512 only when the CPU has AVX2.
+        crate::simd::Kernel::Avx2 | crate::simd::Kernel::Avx512 => unsafe { avx2::exp_neg_row(v) },
         _ => 0,
     };
     for x in &mut v[done..] {

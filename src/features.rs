@@ -516,8 +516,10 @@ pub fn distance_row(
 ) {
     let done = match kernel.or_portable() {
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: or_portable returns Avx2 only when the CPU has it.
-        Kernel::Avx2 => unsafe { avx2::distance_row(planes, depth_weight, center, other, out) },
+        // SAFETY: or_portable returns Avx2 or Avx512 only when the CPU has AVX2.
+        Kernel::Avx2 | Kernel::Avx512 => unsafe {
+            avx2::distance_row(planes, depth_weight, center, other, out)
+        },
         _ => 0,
     };
     let n = out.len();

@@ -20,7 +20,7 @@
 use rayon::prelude::*;
 
 use crate::image::{par_vec, Image};
-use crate::simd::{row_kernel, Kernel};
+use crate::simd::Kernel;
 
 /// Added to the albedo before dividing by it: a black surface keeps its (small) colour.
 pub const DEMODULATION_EPS: f32 = 0.02;
@@ -35,16 +35,19 @@ const BAND_ROWS: usize = 32;
 /// the core's cache from one output row to the next.
 const TILE_COLUMNS: usize = 64;
 const _: () = assert!(
-    TILE_COLUMNS.is_multiple_of(GROUP),
+    TILE_COLUMNS.is_multiple_of(WIDE_GROUP) && WIDE_GROUP.is_multiple_of(GROUP),
     "a tile holds whole groups"
 );
 
-/// Pixels of a row whose window sums are formed together, side by side (one AVX2 register).
+/// Pixels of a row whose window sums are formed together, side by side: one AVX2 register of f32.
 const GROUP: usize = 8;
 
-/// Cells a window row's taps read for a group, at the largest radius: each lane's row is taken as
-/// one array of this length, so no tap's load needs its own bounds check.
-const ROW: usize = 2 * MAX_RADIUS + GROUP;
+/// The group with AVX-512: one 512-bit register (the f64 sums are two, as AVX2's f32 group's are).
+const WIDE_GROUP: usize = 16;
+
+/// Cells a window row's taps read for a group, at the largest radius and group: each lane's row
+/// is taken as one array of this length, so no tap's load needs its own bounds check.
+const ROW: usize = 2 * MAX_RADIUS + WIDE_GROUP;
 
 /// Relative size of the fit's rounding error: a fit this close to the filtered value leaves it.
 const ROUNDING: f64 = 1e-5;
@@ -140,6 +143,22 @@ pub fn regress_with(kernel: Kernel, inputs: Inputs, p: &Params) -> Fit {
     if w == 0 || h == 0 {
         return Fit { color, variance };
     }
+    match kernel {
+        Kernel::Avx512 => fit_bands::<WIDE_GROUP>(kernel, inputs, p, &mut color, &mut variance),
+        _ => fit_bands::<GROUP>(kernel, inputs, p, &mut color, &mut variance),
+    }
+    Fit { color, variance }
+}
+
+/// The fit of every band of rows into `color` and `variance`, G pixels of a row at a time.
+fn fit_bands<const G: usize>(
+    kernel: Kernel,
+    inputs: Inputs,
+    p: &Params,
+    color: &mut Image,
+    variance: &mut [f32],
+) {
+    let (w, h) = inputs.noisy.dims();
     let (r, cos) = (p.radius, p.normal_cos);
     let inv_albedo = 1.0 / (2.0 * p.albedo_sigma * p.albedo_sigma);
     color
@@ -153,20 +172,21 @@ pub fn regress_with(kernel: Kernel, inputs: Inputs, p: &Params) -> Fit {
             let planes = Planes::build(inputs, p, y0, y1);
             let lanes: [&[f32]; LANES] = std::array::from_fn(|l| planes.lanes[l].as_slice());
             let (lanes, stride) = (&lanes, planes.stride);
-            let mut sums = GroupSums::default();
+            let mut sums = GroupSums::<G>::new();
             for tile in (0..w).step_by(TILE_COLUMNS) {
                 for y in y0..y1 {
                     let at = y - y0;
-                    for x0 in (tile..(tile + TILE_COLUMNS).min(w)).step_by(GROUP) {
+                    for x0 in (tile..(tile + TILE_COLUMNS).min(w)).step_by(G) {
                         let center = planes.offset(0, at, 0) + x0;
-                        let sums = &mut sums;
-                        row_kernel!(kernel, window_sums(lanes: &[&[f32]; LANES], center: usize, stride: usize, r: usize, inv_albedo: f32, cos: f32, sums: &mut GroupSums));
+                        window_sums_with(
+                            kernel, lanes, center, stride, r, inv_albedo, cos, &mut sums,
+                        );
                         sums.solve(
                             p,
                             &planes,
                             inputs,
                             (x0, y),
-                            GROUP.min(w - x0),
+                            G.min(w - x0),
                             &mut out[3 * w * at..3 * w * (at + 1)],
                             &mut out_var[w * at..w * (at + 1)],
                         );
@@ -174,7 +194,6 @@ pub fn regress_with(kernel: Kernel, inputs: Inputs, p: &Params) -> Fit {
                 }
             }
         });
-    Fit { color, variance }
 }
 
 /// A band's inputs as padded f32 planes: rows y0 − r .. y1 + r, columns −r .. w + r, zeros (and
@@ -301,11 +320,20 @@ impl Planes {
 /// A group's f64 sums over the whole window, lane by lane: the normal equations A (6 entries of
 /// the symmetric 3×3), the right-hand sides B (3 regressors × 3 channels) and the variance's
 /// matrix M (6 entries).
-#[derive(Default)]
-struct GroupSums {
-    a: [[f64; GROUP]; 6],
-    b: [[f64; GROUP]; 9],
-    m: [[f64; GROUP]; 6],
+struct GroupSums<const G: usize> {
+    a: [[f64; G]; 6],
+    b: [[f64; G]; 9],
+    m: [[f64; G]; 6],
+}
+
+impl<const G: usize> GroupSums<G> {
+    fn new() -> Self {
+        GroupSums {
+            a: [[0.0; G]; 6],
+            b: [[0.0; G]; 9],
+            m: [[0.0; G]; 6],
+        }
+    }
 }
 
 /// Indices of the symmetric 3×3 entries 00, 01, 02, 11, 12, 22.
@@ -327,49 +355,105 @@ pub fn falloff(x: f32) -> f32 {
     q4 * q4
 }
 
-/// GROUP values of a lane from `at`.
+/// G values of a lane from `at`.
 #[inline(always)]
-fn load(lane: &[f32], at: usize) -> [f32; GROUP] {
-    lane[at..at + GROUP].try_into().expect("GROUP values")
+fn load<const G: usize>(lane: &[f32], at: usize) -> [f32; G] {
+    lane[at..at + G].try_into().expect("G values")
 }
 
-/// The window sums of the GROUP pixels from plane cell `center`, every tap in turn: the regressors
-/// are (1, u, v) with u = dx / r, v = dy / r. Each window row's sums are formed in f32 (at most
-/// 2r + 1 terms) and added to the f64 sums; every lane loop is over a fixed GROUP, so it runs in
-/// one vector register.
-#[inline(always)]
-fn window_sums(
+/// [`window_sums`] compiled for `kernel`: the same operations, so the same bits, in AVX2 or
+/// AVX-512 registers where the CPU has them.
+#[allow(clippy::too_many_arguments)]
+fn window_sums_with<const G: usize>(
+    kernel: Kernel,
     lanes: &[&[f32]; LANES],
     center: usize,
     stride: usize,
     r: usize,
     inv_albedo: f32,
     cos: f32,
-    sums: &mut GroupSums,
+    sums: &mut GroupSums<G>,
 ) {
-    let at = |l: usize| load(lanes[l], center);
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx2")]
+        #[allow(clippy::too_many_arguments)]
+        fn avx2<const G: usize>(
+            lanes: &[&[f32]; LANES],
+            center: usize,
+            stride: usize,
+            r: usize,
+            inv_albedo: f32,
+            cos: f32,
+            sums: &mut GroupSums<G>,
+        ) {
+            window_sums(lanes, center, stride, r, inv_albedo, cos, sums)
+        }
+        #[target_feature(enable = "avx2,avx512f,avx512vl,avx512bw,avx512dq")]
+        #[allow(clippy::too_many_arguments)]
+        fn avx512<const G: usize>(
+            lanes: &[&[f32]; LANES],
+            center: usize,
+            stride: usize,
+            r: usize,
+            inv_albedo: f32,
+            cos: f32,
+            sums: &mut GroupSums<G>,
+        ) {
+            window_sums(lanes, center, stride, r, inv_albedo, cos, sums)
+        }
+        match kernel.or_portable() {
+            // SAFETY: `or_portable` gives Avx512 only when the CPU reports its four extensions.
+            Kernel::Avx512 => {
+                return unsafe { avx512(lanes, center, stride, r, inv_albedo, cos, sums) }
+            }
+            // SAFETY: and Avx2 only when it reports AVX2.
+            Kernel::Avx2 => {
+                return unsafe { avx2(lanes, center, stride, r, inv_albedo, cos, sums) }
+            }
+            Kernel::Scalar => {}
+        }
+    }
+    window_sums(lanes, center, stride, r, inv_albedo, cos, sums)
+}
+
+/// The window sums of the G pixels from plane cell `center`, every tap in turn: the regressors
+/// are (1, u, v) with u = dx / r, v = dy / r. Each window row's sums are formed in f32 (at most
+/// 2r + 1 terms) and added to the f64 sums; every lane loop is over a fixed G, so it runs in
+/// one or two vector registers.
+#[inline(always)]
+fn window_sums<const G: usize>(
+    lanes: &[&[f32]; LANES],
+    center: usize,
+    stride: usize,
+    r: usize,
+    inv_albedo: f32,
+    cos: f32,
+    sums: &mut GroupSums<G>,
+) {
+    let at = |l: usize| load::<G>(lanes[l], center);
     let (fc, ac, nc) = (
         [at(F), at(F + 1), at(F + 2)],
         [at(A), at(A + 1), at(A + 2)],
         [at(N), at(N + 1), at(N + 2)],
     );
     let (inv, known_c) = (at(INV), at(KNOWN));
-    *sums = GroupSums::default();
+    *sums = GroupSums::new();
     let ri = r as isize;
-    // Taps in a window row; at most ROW − GROUP + 1, which the loads' bounds follow from.
-    let taps = (2 * r + 1).min(ROW - GROUP + 1);
+    // Taps in a window row; at most ROW − G + 1, which the loads' bounds follow from.
+    let taps = (2 * r + 1).min(ROW - G + 1);
     // One window row's tap weights, rewritten row by row (zeroed once here, not at every row).
-    let mut e = [[0.0f32; GROUP]; 2 * MAX_RADIUS + 1];
+    let mut e = [[0.0f32; G]; 2 * MAX_RADIUS + 1];
     // The taps' u = dx / r, divided once here rather than at every tap of every row.
     let mut us = [0.0f32; 2 * MAX_RADIUS + 1];
     for (j, u) in us[..taps].iter_mut().enumerate() {
         *u = (j as isize - ri) as f32 / r as f32;
     }
     for dy in -ri..=ri {
-        let mut t = [[0.0f32; GROUP]; 3];
-        let mut c0 = [[0.0f32; GROUP]; 3];
-        let mut c1 = [[0.0f32; GROUP]; 3];
-        let mut m = [[0.0f32; GROUP]; 3];
+        let mut t = [[0.0f32; G]; 3];
+        let mut c0 = [[0.0f32; G]; 3];
+        let mut c1 = [[0.0f32; G]; 3];
+        let mut m = [[0.0f32; G]; 3];
         let row = (center as isize + dy * stride as isize - ri) as usize;
         let span = |l: usize| -> &[f32; ROW] {
             lanes[l][row..row + ROW]
@@ -383,8 +467,8 @@ fn window_sums(
         // The weights of the whole window row first: they do not depend on each other, so their
         // chains of operations overlap.
         for (j, e) in e[..taps].iter_mut().enumerate() {
-            let (fo, ao) = (f.map(|s| load(s, j)), a.map(|s| load(s, j)));
-            for l in 0..GROUP {
+            let (fo, ao) = (f.map(|s| load::<G>(s, j)), a.map(|s| load::<G>(s, j)));
+            for l in 0..G {
                 let df = [
                     fc[0][l] - fo[0][l],
                     fc[1][l] - fo[1][l],
@@ -407,14 +491,14 @@ fn window_sums(
             span(V),
         );
         for (j, (e, &u)) in e[..taps].iter().zip(&us).enumerate() {
-            let no = n.map(|s| load(s, j));
-            let known_o = load(known, j);
-            let color = c.map(|s| load(s, j));
-            let var = load(vr, j);
+            let no = n.map(|s| load::<G>(s, j));
+            let known_o = load::<G>(known, j);
+            let color = c.map(|s| load::<G>(s, j));
+            let var = load::<G>(vr, j);
             // Read whole before the lanes choose: a choice between `e` and 0 made on the load
             // itself compiles to a masked load, which keeps the sums below out of registers.
             let e = *e;
-            for l in 0..GROUP {
+            for l in 0..G {
                 let dot = nc[0][l] * no[0][l] + nc[1][l] * no[1][l] + nc[2][l] * no[2][l];
                 // `|` on bools, not `||`: no branch, so the lanes stay in one register. Two
                 // unknown normals match; a cell outside the image or with non-finite inputs
@@ -441,7 +525,7 @@ fn window_sums(
         add_moments(&mut sums.a, t, v);
         add_moments(&mut sums.m, m, v);
         for k in 0..3 {
-            for l in 0..GROUP {
+            for l in 0..G {
                 let (s0, s1) = (c0[k][l] as f64, c1[k][l] as f64);
                 sums.b[3 * k][l] += s0;
                 sums.b[3 * k + 1][l] += s1;
@@ -455,9 +539,9 @@ fn window_sums(
 /// 3×3 moment matrix. The row is taken by value: a reference to it would keep the tap loop's
 /// sums in memory, stored at every tap.
 #[inline(always)]
-fn add_moments(out: &mut [[f64; GROUP]; 6], row: [[f32; GROUP]; 3], v: f64) {
+fn add_moments<const G: usize>(out: &mut [[f64; G]; 6], row: [[f32; G]; 3], v: f64) {
     let v2 = v * v;
-    for l in 0..GROUP {
+    for l in 0..G {
         let (s0, s1, s2) = (row[0][l] as f64, row[1][l] as f64, row[2][l] as f64);
         out[S00][l] += s0;
         out[S01][l] += s1;
@@ -468,7 +552,7 @@ fn add_moments(out: &mut [[f64; GROUP]; 6], row: [[f32; GROUP]; 3], v: f64) {
     }
 }
 
-impl GroupSums {
+impl<const G: usize> GroupSums<G> {
     /// Solves the fits of the `n` pixels from (x0, y) and writes their intercepts (brought back to
     /// colour) and variances into the row's `out` and `out_var`.
     #[allow(clippy::too_many_arguments)]
@@ -892,7 +976,7 @@ mod reference_tests {
         // Radius 3, and the largest, whose window is wider than the image: every window row's
         // reads then run to the end of the band's padded planes.
         for radius in [3, MAX_RADIUS] {
-            for kernel in [Kernel::Scalar, Kernel::detect()] {
+            for kernel in Kernel::ALL.into_iter().filter(|k| k.is_available()) {
                 check_against_direct(inputs, radius, kernel);
             }
         }

@@ -62,7 +62,14 @@ fn both_kernels_any_thread_count_and_the_textbook_sum_give_the_same_bits() {
                 for sigma in [1e-3, 0.2, 5.0] {
                     let scalar = pass_with(Kernel::Scalar, color, &f, m, step, sigma);
                     let fast = pass_with(Kernel::detect(), color, &f, m, step, sigma);
-                    assert_eq!(bits(&scalar), bits(&fast), "{w}x{h} step {step} σ {sigma}");
+                    for kernel in Kernel::ALL.into_iter().filter(|k| k.is_available()) {
+                        let out = pass_with(kernel, color, &f, m, step, sigma);
+                        assert_eq!(
+                            bits(&scalar),
+                            bits(&out),
+                            "{w}x{h} step {step} σ {sigma} {kernel:?}"
+                        );
+                    }
                     let want = textbook_pass(color, &whole, m, step, sigma);
                     assert_eq!(
                         bits(&fast),

@@ -149,7 +149,7 @@ impl<'a> Band<'a> {
             let mut band_steps = 0u64;
             // The AVX2 kernel runs windowed walks on bands its 32-bit indices cover.
             #[cfg(target_arch = "x86_64")]
-            let vector = kernel == Kernel::Avx2 && radius.is_some() && avx2::fits(near);
+            let vector = kernel.avx2() && radius.is_some() && avx2::fits(near);
             #[cfg(not(target_arch = "x86_64"))]
             let vector = false;
             // Start pixels whose walks share the AVX2 kernel's lanes.
