@@ -6,7 +6,8 @@
 //! and then the prefix sum, the pick, ln of the normaliser, the f64 log-probability, the weight
 //! and the colour sums are each a handful of instructions for all eight walks. When a walk ends
 //! its lane takes the next walk of the batch, which may belong to the next start pixel, so
-//! lanes seldom idle.
+//! lanes seldom idle. Two such groups of eight step in turn: each step waits on its own loads,
+//! and the other group's independent step runs in that time.
 //!
 //! A step is one chain of dependent operations (where a walk stands decides what it loads
 //! next), so the walk loop does only what the next step needs; the weights and colour sums run
@@ -30,7 +31,7 @@ pub(super) const SLOTS: usize = 8;
 
 /// Walks per batch to aim for. Lanes idle only while a batch's last walks finish, so more
 /// walks per batch idle less; the batch's window grids must still fit in L1.
-const BATCH_WALKS: usize = 48;
+const BATCH_WALKS: usize = 96;
 
 /// `fastmath::ln_normal` on 8 lanes.
 #[inline]
@@ -376,109 +377,138 @@ struct Lanes {
     ctr: [u64; SLOTS],
 }
 
+/// Groups of SLOTS walks that step in turn. A step is one chain of dependent operations, so one
+/// group leaves the core idle while it waits; a second group's chain, independent of the first,
+/// fills those cycles.
+const GROUPS: usize = 2;
+
 /// Per-batch scratch of [`walk_batch`], reused from batch to batch.
 #[derive(Default)]
 pub(super) struct Walks {
     /// Each walk's sums, merged per start pixel in walk order at the end.
     parts: Vec<Accum>,
-    /// The steps not yet weighed: at most [`FLUSH_RECORDS`].
-    records: Vec<Record>,
-    /// The jobs of the walks that ended in `records`, in the order they ended.
-    ends: Vec<usize>,
+    /// Per group, the steps not yet weighed: at most [`FLUSH_RECORDS`].
+    records: [Vec<Record>; GROUPS],
+    /// Per group, the jobs of the walks that ended in its `records`, in the order they ended.
+    ends: [Vec<usize>; GROUPS],
 }
 
-/// `super::scalar::walk_windowed` for every start pixel of `win`, bit for bit, their walks sharing the
-/// lanes. `parts` is scratch space for the walks' sums; `accs[b]` receives start pixel b's
-/// result. Returns the steps taken.
-///
-/// # Safety
-/// The CPU must support AVX2, and [`fits`] must hold for `near`.
-#[target_feature(enable = "avx2")]
-pub(super) unsafe fn walk_batch(
-    input: &WalkInput,
-    params: &WalkParams,
-    near: &Near,
-    win: Batch,
-    scratch: &mut Walks,
-    accs: &mut [Accum],
-) -> u64 {
-    let w = input.color.width();
-    let side = win.side;
-    let goff_arr = lane_offsets(side);
-    let goff = offsets8(goff_arr);
-    let ioff = offsets8(lane_offsets(w));
-    let ln_pmin = _mm256_set1_pd(params.p_min.ln());
-    let walks = params.walks as usize;
-    let total = walks * win.starts.len();
-    assert!(
-        win.starts.len() <= BATCH_WALKS,
-        "batch larger than `batch` gives"
-    );
-    let Walks {
-        parts,
-        records,
-        ends,
-    } = scratch;
-    parts.clear();
-    parts.resize(total, Accum::default());
-    records.clear();
-    ends.clear();
-    if total == 0 {
-        return 0;
-    }
-    // Pixel indices are relative to the band's first row, so they fit in 32 bits.
-    let base = near.base;
-    let lin = near.lin.as_ptr().cast::<f32>();
-    let log = near.log.as_ptr().cast::<f32>();
-    let color = input.color.data()[3 * base..].as_ptr();
-    let (grid, egrid) = (win.grid.as_ptr(), win.egrid.as_ptr());
+/// What every step of a batch reads: the band's tables, the batch's grids and the lane offsets.
+struct Ctx<'a> {
+    near: &'a Near,
+    win: &'a Batch<'a>,
+    lin: *const f32,
+    log: *const f32,
+    grid: *const f32,
+    egrid: *const f32,
+    goff_arr: [isize; 8],
+    goff: __m256i,
+    ioff: __m256i,
+    ln_pmin: __m256d,
+    max_steps: __m256i,
+}
 
-    let two_gamma = GAMMA.wrapping_mul(2);
-    // One key per start pixel ([`batch`] never gives more than BATCH_WALKS start pixels).
-    let mut pkeys = [0u64; BATCH_WALKS];
-    for (key, &(_, i0)) in pkeys.iter_mut().zip(win.starts) {
-        *key = input.key(i0);
+/// The jobs of a batch: walk j is walk j % walks of start pixel j / walks.
+struct Jobs<'a> {
+    starts: &'a [(usize, usize)],
+    keys: [u64; BATCH_WALKS],
+    walks: usize,
+    base: usize,
+    total: usize,
+    next: usize,
+}
+
+impl Jobs<'_> {
+    /// Walk j's start cell, pixel (relative to the band's first row) and first counter.
+    fn start(&self, j: usize) -> (i32, i32, u64) {
+        let (cell, i0) = self.starts[j / self.walks];
+        let key = walk_key(self.keys[j / self.walks], (j % self.walks) as u32);
+        (
+            cell as i32,
+            (i0 - self.base) as i32,
+            key.wrapping_add(GAMMA.wrapping_mul(2)),
+        )
     }
-    let start = |j: usize| {
-        let (cell, i0) = win.starts[j / walks];
-        let key = walk_key(pkeys[j / walks], (j % walks) as u32);
-        (cell as i32, (i0 - base) as i32, key.wrapping_add(two_gamma))
-    };
-    let mut st = Lanes {
-        job: [0; SLOTS],
-        cell: [0; SLOTS],
-        pixel: [0; SLOTS],
-        step: [0; SLOTS],
-        ctr: [0; SLOTS],
-    };
-    // Lanes without a walk sit on the first walk's start cell, so their loads stay in bounds.
-    let mut live = 0i32;
-    let mut next = 0usize;
-    for s in 0..SLOTS {
-        let j = next.min(total - 1);
-        (st.cell[s], st.pixel[s], st.ctr[s]) = start(j);
-        if next < total {
-            st.job[s] = next;
-            live |= 1 << s;
-            next += 1;
+}
+
+/// SLOTS walks in lockstep: the lanes' state, in registers and in memory.
+struct Group {
+    st: Lanes,
+    cell: __m256i,
+    pixel: __m256i,
+    step: __m256i,
+    ctr: [__m256i; 2],
+    log_p: [__m256d; 2],
+    /// Lanes with a walk.
+    live: i32,
+}
+
+impl Group {
+    /// A group whose lanes take the next jobs. Lanes without a walk sit on the batch's last
+    /// walk's start cell, so their loads stay in bounds.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn new(jobs: &mut Jobs) -> Group {
+        let mut st = Lanes {
+            job: [0; SLOTS],
+            cell: [0; SLOTS],
+            pixel: [0; SLOTS],
+            step: [0; SLOTS],
+            ctr: [0; SLOTS],
+        };
+        let mut live = 0i32;
+        for s in 0..SLOTS {
+            (st.cell[s], st.pixel[s], st.ctr[s]) = jobs.start(jobs.next.min(jobs.total - 1));
+            if jobs.next < jobs.total {
+                st.job[s] = jobs.next;
+                live |= 1 << s;
+                jobs.next += 1;
+            }
+        }
+        Group {
+            cell: load_lanes(&st.cell),
+            pixel: load_lanes(&st.pixel),
+            step: load_lanes(&st.step),
+            // SAFETY: both loads read 4 of `st.ctr`'s 8 values.
+            ctr: unsafe {
+                [
+                    _mm256_loadu_si256(st.ctr.as_ptr().cast()),
+                    _mm256_loadu_si256(st.ctr[4..].as_ptr().cast()),
+                ]
+            },
+            log_p: [_mm256_setzero_pd(); 2],
+            st,
+            live,
         }
     }
-    let mut steps = 0u64;
-    let max_steps = _mm256_set1_epi32(params.max_steps.min(i32::MAX as u32) as i32);
-    let mut cell = load_lanes(&st.cell);
-    let mut pixel = load_lanes(&st.pixel);
-    let mut step = load_lanes(&st.step);
-    let mut ctr = [
-        _mm256_loadu_si256(st.ctr.as_ptr().cast()),
-        _mm256_loadu_si256(st.ctr[4..].as_ptr().cast()),
-    ];
-    let mut log_p = [_mm256_setzero_pd(); 2];
-    let mut weigh = Weigh::new();
-    while live != 0 {
-        let u = uniform8(ctr);
+
+    /// One step of every live walk, with no branch that depends on it (the next group's step can
+    /// start before this one's ends): the record of where each walk stands now.
+    ///
+    /// # Safety
+    /// As [`walk_batch`]: every lane stands inside its window and the band.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn advance(&mut self, cx: &Ctx) -> Record {
+        let Ctx {
+            near,
+            win,
+            lin,
+            log,
+            grid,
+            egrid,
+            goff_arr,
+            goff,
+            ioff,
+            ln_pmin,
+            max_steps,
+        } = *cx;
+        let side = win.side;
+        let st = &mut self.st;
+        let u = uniform8(self.ctr);
         // Each walk's 8 neighbour weights, one register per walk, then one per neighbour.
-        _mm256_storeu_si256(st.cell.as_mut_ptr().cast(), cell);
-        _mm256_storeu_si256(st.pixel.as_mut_ptr().cast(), pixel);
+        _mm256_storeu_si256(st.cell.as_mut_ptr().cast(), self.cell);
+        _mm256_storeu_si256(st.pixel.as_mut_ptr().cast(), self.pixel);
         // Their log-domain twins are loaded too, so that the picked one's is a permute away
         // once the pick is known (a gather would wait on memory). A plain loop, not a
         // closure, which a build may leave out of line: a call per walk.
@@ -501,8 +531,9 @@ pub(super) unsafe fn walk_batch(
             rows[s] = _mm256_mul_ps(window_block(egrid, g, side), e);
             logs[s] = _mm256_add_ps(window_block(grid, g, side), _mm256_loadu_ps(log.add(i)));
         }
-        let cand =
-            _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(max_steps, step))) & live;
+        let cand = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(
+            max_steps, self.step,
+        ))) & self.live;
         let (k, lp, picked) = choose8(&transpose8(rows), &logs, u, cand, |s| {
             let (g, i) = (st.cell[s] as isize, st.pixel[s] as usize);
             let t = near.log[i];
@@ -510,8 +541,8 @@ pub(super) unsafe fn walk_batch(
         });
         let lp = to_f64(lp);
         let new_log_p = [
-            _mm256_add_pd(log_p[0], lp[0]),
-            _mm256_add_pd(log_p[1], lp[1]),
+            _mm256_add_pd(self.log_p[0], lp[0]),
+            _mm256_add_pd(self.log_p[1], lp[1]),
         ];
         let above = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_NLT_UQ>(new_log_p[0], ln_pmin))
             | _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_NLT_UQ>(new_log_p[1], ln_pmin)) << 4;
@@ -520,21 +551,21 @@ pub(super) unsafe fn walk_batch(
         let moved = widen(going_v);
         // Only walks that go on move: a walk that stops stays where it stood (inside its
         // window and the image), so a lane left without a new walk still loads in bounds.
-        cell = _mm256_blendv_epi8(
-            cell,
-            _mm256_add_epi32(cell, _mm256_permutevar8x32_epi32(goff, k)),
+        self.cell = _mm256_blendv_epi8(
+            self.cell,
+            _mm256_add_epi32(self.cell, _mm256_permutevar8x32_epi32(goff, k)),
             going_v,
         );
-        pixel = _mm256_blendv_epi8(
-            pixel,
-            _mm256_add_epi32(pixel, _mm256_permutevar8x32_epi32(ioff, k)),
+        self.pixel = _mm256_blendv_epi8(
+            self.pixel,
+            _mm256_add_epi32(self.pixel, _mm256_permutevar8x32_epi32(ioff, k)),
             going_v,
         );
-        step = _mm256_sub_epi32(step, going_v);
+        self.step = _mm256_sub_epi32(self.step, going_v);
         let gamma = _mm256_set1_epi64x(GAMMA as i64);
         for h in 0..2 {
-            ctr[h] = _mm256_add_epi64(
-                ctr[h],
+            self.ctr[h] = _mm256_add_epi64(
+                self.ctr[h],
                 _mm256_and_si256(gamma, _mm256_castpd_si256(moved[h])),
             );
         }
@@ -545,66 +576,168 @@ pub(super) unsafe fn walk_batch(
             log_p: [0.0; SLOTS],
             step: [0; SLOTS],
             going,
-            ended: live & !going,
+            ended: self.live & !going,
         };
-        _mm256_storeu_si256(rec.pixel.as_mut_ptr().cast(), pixel);
-        _mm256_storeu_si256(rec.step.as_mut_ptr().cast(), step);
+        _mm256_storeu_si256(rec.pixel.as_mut_ptr().cast(), self.pixel);
+        _mm256_storeu_si256(rec.step.as_mut_ptr().cast(), self.step);
         for h in 0..2 {
             _mm256_storeu_pd(rec.log_p[4 * h..].as_mut_ptr(), new_log_p[h]);
-            log_p[h] = _mm256_blendv_pd(log_p[h], new_log_p[h], moved[h]);
+            self.log_p[h] = _mm256_blendv_pd(self.log_p[h], new_log_p[h], moved[h]);
         }
-        records.push(rec);
-        // Ended walks hand in their steps; their lane takes the next walk. The resets are
-        // blends, and the new walks' starts one blend per field.
-        let ended = rec.ended;
-        if ended != 0 {
-            _mm256_storeu_si256(st.step.as_mut_ptr().cast(), step);
-            let mut refilled = 0i32;
-            let mut bits = ended;
-            while bits != 0 {
-                let s = bits.trailing_zeros() as usize;
-                bits &= bits - 1;
-                steps += st.step[s] as u64;
-                ends.push(st.job[s]);
-                if next < total {
-                    (st.cell[s], st.pixel[s], st.ctr[s]) = start(next);
-                    st.job[s] = next;
-                    next += 1;
-                    refilled |= 1 << s;
-                } else {
-                    live &= !(1 << s);
-                }
+        rec
+    }
+
+    /// Ended walks (`ended`, from the record [`advance`](Group::advance) just gave) hand in
+    /// their steps and jobs; their lanes take the next jobs. The resets are blends, and the new
+    /// walks' starts one blend per field. Returns the ended walks' steps.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn refill(&mut self, ended: i32, jobs: &mut Jobs, ends: &mut Vec<usize>) -> u64 {
+        if ended == 0 {
+            return 0;
+        }
+        let st = &mut self.st;
+        let mut steps = 0u64;
+        // SAFETY: stores 8 i32 into `st.step`'s 8.
+        unsafe { _mm256_storeu_si256(st.step.as_mut_ptr().cast(), self.step) };
+        let mut refilled = 0i32;
+        let mut bits = ended;
+        while bits != 0 {
+            let s = bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            steps += st.step[s] as u64;
+            ends.push(st.job[s]);
+            if jobs.next < jobs.total {
+                (st.cell[s], st.pixel[s], st.ctr[s]) = jobs.start(jobs.next);
+                st.job[s] = jobs.next;
+                jobs.next += 1;
+                refilled |= 1 << s;
+            } else {
+                self.live &= !(1 << s);
             }
-            let ended_v = lanes(ended);
-            let reset = widen(ended_v);
-            step = _mm256_andnot_si256(ended_v, step);
+        }
+        let ended_v = lanes(ended);
+        let reset = widen(ended_v);
+        self.step = _mm256_andnot_si256(ended_v, self.step);
+        for h in 0..2 {
+            self.log_p[h] = _mm256_andnot_pd(reset[h], self.log_p[h]);
+        }
+        if refilled != 0 {
+            let fresh = lanes(refilled);
+            self.cell = _mm256_blendv_epi8(self.cell, load_lanes(&st.cell), fresh);
+            self.pixel = _mm256_blendv_epi8(self.pixel, load_lanes(&st.pixel), fresh);
+            let fresh = widen(fresh);
             for h in 0..2 {
-                log_p[h] = _mm256_andnot_pd(reset[h], log_p[h]);
-            }
-            if refilled != 0 {
-                let fresh = lanes(refilled);
-                cell = _mm256_blendv_epi8(cell, load_lanes(&st.cell), fresh);
-                pixel = _mm256_blendv_epi8(pixel, load_lanes(&st.pixel), fresh);
-                let fresh = widen(fresh);
-                for h in 0..2 {
-                    let new = _mm256_loadu_si256(st.ctr[4 * h..].as_ptr().cast());
-                    ctr[h] = _mm256_castpd_si256(_mm256_blendv_pd(
-                        _mm256_castsi256_pd(ctr[h]),
-                        _mm256_castsi256_pd(new),
-                        fresh[h],
-                    ));
-                }
+                // SAFETY: reads 4 of `st.ctr`'s 8 values.
+                let new = unsafe { _mm256_loadu_si256(st.ctr[4 * h..].as_ptr().cast()) };
+                self.ctr[h] = _mm256_castpd_si256(_mm256_blendv_pd(
+                    _mm256_castsi256_pd(self.ctr[h]),
+                    _mm256_castsi256_pd(new),
+                    fresh[h],
+                ));
             }
         }
-        // Weighs what has accumulated, so the records never outgrow a fixed bound; `weigh`
-        // carries the sums of the walks in flight, and `ends` holds exactly the ended walks'.
-        if records.len() >= FLUSH_RECORDS {
-            weigh.run(records, ends, color, parts);
-            records.clear();
-            ends.clear();
+        steps
+    }
+}
+
+/// `super::scalar::walk_windowed` for every start pixel of `win`, bit for bit, their walks sharing the
+/// lanes of [`GROUPS`] groups. `scratch` is reused space for the walks' sums; `accs[b]` receives
+/// start pixel b's result. Returns the steps taken.
+///
+/// Any walk may run in any lane of any group: each walk's steps are weighed in its own order by
+/// its group's [`Weigh`], and the walks' sums are merged per start pixel in walk order, so the
+/// result does not depend on which lane took which walk.
+///
+/// # Safety
+/// The CPU must support AVX2, and [`fits`] must hold for `near`.
+#[target_feature(enable = "avx2")]
+pub(super) unsafe fn walk_batch(
+    input: &WalkInput,
+    params: &WalkParams,
+    near: &Near,
+    win: Batch,
+    scratch: &mut Walks,
+    accs: &mut [Accum],
+) -> u64 {
+    let w = input.color.width();
+    let walks = params.walks as usize;
+    let total = walks * win.starts.len();
+    assert!(
+        win.starts.len() <= BATCH_WALKS,
+        "batch larger than `batch` gives"
+    );
+    let Walks {
+        parts,
+        records,
+        ends,
+    } = scratch;
+    parts.clear();
+    parts.resize(total, Accum::default());
+    for g in 0..GROUPS {
+        records[g].clear();
+        ends[g].clear();
+    }
+    if total == 0 {
+        return 0;
+    }
+    // Pixel indices are relative to the band's first row, so they fit in 32 bits.
+    let base = near.base;
+    let color = input.color.data()[3 * base..].as_ptr();
+    let goff_arr = lane_offsets(win.side);
+    let cx = Ctx {
+        near,
+        win: &win,
+        lin: near.lin.as_ptr().cast::<f32>(),
+        log: near.log.as_ptr().cast::<f32>(),
+        grid: win.grid.as_ptr(),
+        egrid: win.egrid.as_ptr(),
+        goff_arr,
+        goff: offsets8(goff_arr),
+        ioff: offsets8(lane_offsets(w)),
+        ln_pmin: _mm256_set1_pd(params.p_min.ln()),
+        max_steps: _mm256_set1_epi32(params.max_steps.min(i32::MAX as u32) as i32),
+    };
+    // One key per start pixel ([`batch`] never gives more than BATCH_WALKS start pixels).
+    let mut jobs = Jobs {
+        starts: win.starts,
+        keys: [0u64; BATCH_WALKS],
+        walks,
+        base,
+        total,
+        next: 0,
+    };
+    for (key, &(_, i0)) in jobs.keys.iter_mut().zip(win.starts) {
+        *key = input.key(i0);
+    }
+    let mut groups: [Group; GROUPS] = std::array::from_fn(|_| Group::new(&mut jobs));
+    let mut weigh: [Weigh; GROUPS] = std::array::from_fn(|_| Weigh::new());
+    let mut steps = 0u64;
+    while groups.iter().any(|g| g.live != 0) {
+        // Every group's step first, then the refills, whose branches depend on the steps: a
+        // mispredicted one then discards no other group's work.
+        let mut ended = [0i32; GROUPS];
+        for g in 0..GROUPS {
+            if groups[g].live != 0 {
+                let rec = groups[g].advance(&cx);
+                ended[g] = rec.ended;
+                records[g].push(rec);
+            }
+        }
+        for g in 0..GROUPS {
+            steps += groups[g].refill(ended[g], &mut jobs, &mut ends[g]);
+            // Weighs what has accumulated, so the records never outgrow a fixed bound; `weigh`
+            // carries the sums of the walks in flight, and `ends` holds exactly the ended walks'.
+            if records[g].len() >= FLUSH_RECORDS {
+                weigh[g].run(&records[g], &ends[g], color, parts);
+                records[g].clear();
+                ends[g].clear();
+            }
         }
     }
-    weigh.run(records, ends, color, parts);
+    for g in 0..GROUPS {
+        weigh[g].run(&records[g], &ends[g], color, parts);
+    }
     for (b, &(_, i0)) in win.starts.iter().enumerate() {
         let mut acc = Accum::new(input, i0, params);
         for part in &parts[b * walks..(b + 1) * walks] {
