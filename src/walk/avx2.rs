@@ -649,14 +649,17 @@ impl Group {
 /// its group's [`Weigh`], and the walks' sums are merged per start pixel in walk order, so the
 /// result does not depend on which lane took which walk.
 ///
+/// The steps are weighed with AVX-512 registers if `wide`.
+///
 /// # Safety
-/// The CPU must support AVX2, and [`fits`] must hold for `near`.
+/// The CPU must support AVX2 (and AVX-512 F if `wide`), and [`fits`] must hold for `near`.
 #[target_feature(enable = "avx2")]
 pub(super) unsafe fn walk_batch(
     input: &WalkInput,
     params: &WalkParams,
     near: &Near,
     win: Batch,
+    wide: bool,
     scratch: &mut Walks,
     accs: &mut [Accum],
 ) -> u64 {
@@ -711,7 +714,7 @@ pub(super) unsafe fn walk_batch(
         *key = input.key(i0);
     }
     let mut groups: [Group; GROUPS] = std::array::from_fn(|_| Group::new(&mut jobs));
-    let mut weigh: [Weigh; GROUPS] = std::array::from_fn(|_| Weigh::new());
+    let mut weigh: [Weigh; GROUPS] = std::array::from_fn(|_| Weigh::new(wide));
     let mut steps = 0u64;
     while groups.iter().any(|g| g.live != 0) {
         // Every group's step first, then the refills, whose branches depend on the steps: a

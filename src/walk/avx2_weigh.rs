@@ -28,10 +28,13 @@ pub(super) struct Record {
     pub(super) ended: i32,
 }
 
-/// Per-lane colour and weight sums of the walks in flight, carried across chunks of records.
+/// Per-lane colour and weight sums of the walks in flight, carried across chunks of records (in
+/// memory between chunks, in registers within one).
 pub(super) struct Weigh {
-    sum: [[__m256d; 2]; 3],
-    weight: [__m256d; 2],
+    /// Colour sums (three channels), then the weight sums, one f64 per lane.
+    sums: [[f64; SLOTS]; 4],
+    /// Whether the CPU runs AVX-512: the sums of all eight lanes then fit one register.
+    wide: bool,
 }
 
 /// acc + x where `m` is set, acc elsewhere.
@@ -41,13 +44,55 @@ fn add_where(acc: __m256d, x: __m256d, m: __m256d) -> __m256d {
     _mm256_blendv_pd(acc, _mm256_add_pd(acc, x), m)
 }
 
+/// One record's step weights exp(L_k / k) (0 where a walk did not move), as 8 f32: the same
+/// operations for either register width.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn step_weights(rec: &Record, going_v: __m256i) -> __m256 {
+    // SAFETY: each load reads 8 i32 or 4 f64 of the record's arrays of 8.
+    let (step, log_p) = unsafe {
+        (
+            _mm256_loadu_si256(rec.step.as_ptr().cast()),
+            [
+                _mm256_loadu_pd(rec.log_p.as_ptr()),
+                _mm256_loadu_pd(rec.log_p[4..].as_ptr()),
+            ],
+        )
+    };
+    let step_pd = [
+        _mm256_cvtepi32_pd(_mm256_castsi256_si128(step)),
+        _mm256_cvtepi32_pd(_mm256_extracti128_si256::<1>(step)),
+    ];
+    let ratio = _mm256_set_m128(
+        _mm256_cvtpd_ps(_mm256_div_pd(log_p[1], step_pd[1])),
+        _mm256_cvtpd_ps(_mm256_div_pd(log_p[0], step_pd[0])),
+    );
+    // Lanes that did not move may hold 0/0: they get exp(0), masked by the caller.
+    let ratio = _mm256_and_ps(ratio, _mm256_castsi256_ps(going_v));
+    exp_neg8(ratio)
+}
+
+/// Each moving lane's colour, channel `ch`, as 8 f32 (0 elsewhere).
+///
+/// # Safety
+/// Every pixel of a moving lane must index `color`'s pixels.
+#[inline]
+#[target_feature(enable = "avx2")]
+unsafe fn colours(rec: &Record, going_v: __m256i, color: *const f32, ch: usize) -> __m256 {
+    let pixel = _mm256_loadu_si256(rec.pixel.as_ptr().cast());
+    let at3 = _mm256_mullo_epi32(pixel, _mm256_set1_epi32(3));
+    _mm256_i32gather_ps::<4>(
+        color.add(ch),
+        _mm256_blendv_epi8(_mm256_setzero_si256(), at3, going_v),
+    )
+}
+
 impl Weigh {
-    /// Sums of no steps, for a batch's first chunk.
-    #[target_feature(enable = "avx2")]
-    pub(super) fn new() -> Self {
+    /// Sums of no steps, for a batch's first chunk; `wide` where the CPU runs AVX-512 (F).
+    pub(super) fn new(wide: bool) -> Self {
         Weigh {
-            sum: [[_mm256_setzero_pd(); 2]; 3],
-            weight: [_mm256_setzero_pd(); 2],
+            sums: [[0.0; SLOTS]; 4],
+            wide,
         }
     }
 
@@ -56,7 +101,8 @@ impl Weigh {
     /// its sums in `parts[job]`.
     ///
     /// # Safety
-    /// The CPU must support AVX2, and every pixel of a moving lane must index `color`'s pixels.
+    /// The CPU must support AVX2 (and AVX-512 F if `wide`), and every pixel of a moving lane must
+    /// index `color`'s pixels.
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn run(
         &mut self,
@@ -65,38 +111,28 @@ impl Weigh {
         color: *const f32,
         parts: &mut [Accum],
     ) {
-        let Weigh { sum, weight } = self;
+        if self.wide {
+            self.run_wide(records, ends, color, parts);
+            return;
+        }
+        let at = |k: usize, h: usize| _mm256_loadu_pd(self.sums[k][4 * h..].as_ptr());
+        let mut sum = [
+            [at(0, 0), at(0, 1)],
+            [at(1, 0), at(1, 1)],
+            [at(2, 0), at(2, 1)],
+        ];
+        let mut weight = [at(3, 0), at(3, 1)];
         let mut ends = ends.iter();
         for rec in records {
             let going_v = lanes(rec.going);
             let moved = widen(going_v);
-            let step = _mm256_loadu_si256(rec.step.as_ptr().cast());
-            let log_p = [
-                _mm256_loadu_pd(rec.log_p.as_ptr()),
-                _mm256_loadu_pd(rec.log_p[4..].as_ptr()),
-            ];
-            let step_pd = [
-                _mm256_cvtepi32_pd(_mm256_castsi256_si128(step)),
-                _mm256_cvtepi32_pd(_mm256_extracti128_si256::<1>(step)),
-            ];
-            let ratio = _mm256_set_m128(
-                _mm256_cvtpd_ps(_mm256_div_pd(log_p[1], step_pd[1])),
-                _mm256_cvtpd_ps(_mm256_div_pd(log_p[0], step_pd[0])),
-            );
-            // Lanes that did not move may hold 0/0: they get exp(0), masked below.
-            let ratio = _mm256_and_ps(ratio, _mm256_castsi256_ps(going_v));
-            let wgt = to_f64(exp_neg8(ratio));
+            let wgt = to_f64(step_weights(rec, going_v));
             let wgt = [
                 _mm256_and_pd(wgt[0], moved[0]),
                 _mm256_and_pd(wgt[1], moved[1]),
             ];
-            let pixel = _mm256_loadu_si256(rec.pixel.as_ptr().cast());
-            let at3 = _mm256_mullo_epi32(pixel, _mm256_set1_epi32(3));
             for (ch, acc) in sum.iter_mut().enumerate() {
-                let col = to_f64(_mm256_i32gather_ps::<4>(
-                    color.add(ch),
-                    _mm256_blendv_epi8(_mm256_setzero_si256(), at3, going_v),
-                ));
+                let col = to_f64(colours(rec, going_v, color, ch));
                 for h in 0..2 {
                     acc[h] = add_where(acc[h], _mm256_mul_pd(wgt[h], col[h]), moved[h]);
                 }
@@ -112,16 +148,7 @@ impl Weigh {
                         _mm256_storeu_pd(sums[ch][4 * h..].as_mut_ptr(), sum[ch][h]);
                     }
                 }
-                let mut bits = rec.ended;
-                while bits != 0 {
-                    let s = bits.trailing_zeros() as usize;
-                    bits &= bits - 1;
-                    let job = *ends.next().expect("one job per ended walk");
-                    parts[job] = Accum {
-                        sum: [sums[0][s], sums[1][s], sums[2][s]],
-                        weight: sums[3][s],
-                    };
-                }
+                hand_in(rec.ended, &sums, &mut ends, parts);
                 let reset = widen(lanes(rec.ended));
                 for h in 0..2 {
                     weight[h] = _mm256_andnot_pd(reset[h], weight[h]);
@@ -132,5 +159,74 @@ impl Weigh {
             }
         }
         debug_assert!(ends.next().is_none(), "a job for a walk that did not end");
+        for h in 0..2 {
+            _mm256_storeu_pd(self.sums[3][4 * h..].as_mut_ptr(), weight[h]);
+            for ch in 0..3 {
+                _mm256_storeu_pd(self.sums[ch][4 * h..].as_mut_ptr(), sum[ch][h]);
+            }
+        }
+    }
+
+    /// [`run`](Weigh::run) with each sum's eight lanes in one AVX-512 register and the lanes
+    /// chosen by mask registers: the same operations on every lane, so the same bits.
+    ///
+    /// # Safety
+    /// As [`run`](Weigh::run), with AVX-512 F.
+    #[target_feature(enable = "avx2,avx512f")]
+    unsafe fn run_wide(
+        &mut self,
+        records: &[Record],
+        ends: &[usize],
+        color: *const f32,
+        parts: &mut [Accum],
+    ) {
+        let mut acc: [__m512d; 4] = std::array::from_fn(|k| _mm512_loadu_pd(self.sums[k].as_ptr()));
+        let mut ends = ends.iter();
+        for rec in records {
+            let going_v = lanes(rec.going);
+            let moved = rec.going as __mmask8;
+            let wgt = _mm512_maskz_mov_pd(moved, _mm512_cvtps_pd(step_weights(rec, going_v)));
+            for ch in 0..3 {
+                let col = _mm512_cvtps_pd(colours(rec, going_v, color, ch));
+                acc[ch] = _mm512_mask_add_pd(acc[ch], moved, acc[ch], _mm512_mul_pd(wgt, col));
+            }
+            acc[3] = _mm512_mask_add_pd(acc[3], moved, acc[3], wgt);
+            if rec.ended != 0 {
+                let mut sums = [[0.0f64; SLOTS]; 4];
+                for k in 0..4 {
+                    _mm512_storeu_pd(sums[k].as_mut_ptr(), acc[k]);
+                }
+                hand_in(rec.ended, &sums, &mut ends, parts);
+                let kept = !(rec.ended as __mmask8);
+                for a in &mut acc {
+                    *a = _mm512_maskz_mov_pd(kept, *a);
+                }
+            }
+        }
+        debug_assert!(ends.next().is_none(), "a job for a walk that did not end");
+        for k in 0..4 {
+            _mm512_storeu_pd(self.sums[k].as_mut_ptr(), acc[k]);
+        }
+    }
+}
+
+/// The walks of `ended` leave their sums (`sums`: colour channels, then weight, per lane) in
+/// `parts`, each at the next job of `ends`.
+#[inline]
+fn hand_in(
+    ended: i32,
+    sums: &[[f64; SLOTS]; 4],
+    ends: &mut std::slice::Iter<usize>,
+    parts: &mut [Accum],
+) {
+    let mut bits = ended;
+    while bits != 0 {
+        let s = bits.trailing_zeros() as usize;
+        bits &= bits - 1;
+        let job = *ends.next().expect("one job per ended walk");
+        parts[job] = Accum {
+            sum: [sums[0][s], sums[1][s], sums[2][s]],
+            weight: sums[3][s],
+        };
     }
 }

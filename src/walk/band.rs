@@ -185,7 +185,8 @@ impl<'a> Band<'a> {
                             match vector {
                                 #[cfg(target_arch = "x86_64")]
                                 // SAFETY: `vector` holds only if the CPU reported AVX2 above
-                                // and `fits` holds for `near`.
+                                // and `fits` holds for `near`; `or_portable` gives Avx512 only
+                                // where the CPU has AVX-512.
                                 true => unsafe {
                                     avx2::walk_batch(
                                         input,
@@ -197,6 +198,7 @@ impl<'a> Band<'a> {
                                             side: 2 * r + 3,
                                             starts: &scratch.starts,
                                         },
+                                        kernel.or_portable() == Kernel::Avx512,
                                         &mut scratch.walks,
                                         &mut scratch.accs,
                                     )
