@@ -14,8 +14,8 @@
 //! [`run`] is the one entry point. Its [`Engine`] is the reference (`reference`: every distance
 //! recomputed, the readable spec) or the fast kernels, which precompute the x0-independent terms
 //! per band of rows (`tables`, `band`) and, with a window, the x0 terms per window cell, and step
-//! lane by lane (`scalar`) or eight walks at a time (`avx2`), over the whole image or strip by strip
-//! (`strips`). All consume the same random numbers (`rng`) and run the same step (`step`), so they
+//! lane by lane (`scalar`) or two groups of eight walks in turn (`avx2`; its weighing in AVX-512
+//! registers where the CPU has them), over the whole image or strip by strip (`strips`). All consume the same random numbers (`rng`) and run the same step (`step`), so they
 //! agree bit for bit.
 
 // Lane loops index several 8-wide arrays at once; indices read better than zipped iterators.
