@@ -171,16 +171,20 @@ fn fit_bands<const G: usize>(
             let y1 = (y0 + BAND_ROWS).min(h);
             let planes = Planes::build(inputs, p, y0, y1);
             let lanes: [&[f32]; LANES] = std::array::from_fn(|l| planes.lanes[l].as_slice());
-            let (lanes, stride) = (&lanes, planes.stride);
+            let taps = Taps {
+                lanes: &lanes,
+                stride: planes.stride,
+                r,
+                inv_albedo,
+                cos,
+            };
             let mut sums = GroupSums::<G>::new();
             for tile in (0..w).step_by(TILE_COLUMNS) {
                 for y in y0..y1 {
                     let at = y - y0;
                     for x0 in (tile..(tile + TILE_COLUMNS).min(w)).step_by(G) {
                         let center = planes.offset(0, at, 0) + x0;
-                        window_sums_with(
-                            kernel, lanes, center, stride, r, inv_albedo, cos, &mut sums,
-                        );
+                        window_sums_with(kernel, &taps, center, &mut sums);
                         sums.solve(
                             p,
                             &planes,
@@ -361,60 +365,42 @@ fn load<const G: usize>(lane: &[f32], at: usize) -> [f32; G] {
     lane[at..at + G].try_into().expect("G values")
 }
 
-/// [`window_sums`] compiled for `kernel`: the same operations, so the same bits, in AVX2 or
-/// AVX-512 registers where the CPU has them.
-#[allow(clippy::too_many_arguments)]
-fn window_sums_with<const G: usize>(
-    kernel: Kernel,
-    lanes: &[&[f32]; LANES],
-    center: usize,
+/// What every group's window sums of a band read: the band's planes and the weights' settings.
+struct Taps<'a> {
+    lanes: &'a [&'a [f32]; LANES],
     stride: usize,
     r: usize,
     inv_albedo: f32,
     cos: f32,
+}
+
+/// [`window_sums`] compiled for `kernel`: the same operations, so the same bits, in AVX2 or
+/// AVX-512 registers where the CPU has them.
+fn window_sums_with<const G: usize>(
+    kernel: Kernel,
+    taps: &Taps,
+    center: usize,
     sums: &mut GroupSums<G>,
 ) {
     #[cfg(target_arch = "x86_64")]
     {
         #[target_feature(enable = "avx2")]
-        #[allow(clippy::too_many_arguments)]
-        fn avx2<const G: usize>(
-            lanes: &[&[f32]; LANES],
-            center: usize,
-            stride: usize,
-            r: usize,
-            inv_albedo: f32,
-            cos: f32,
-            sums: &mut GroupSums<G>,
-        ) {
-            window_sums(lanes, center, stride, r, inv_albedo, cos, sums)
+        fn avx2<const G: usize>(taps: &Taps, center: usize, sums: &mut GroupSums<G>) {
+            window_sums(taps, center, sums)
         }
         #[target_feature(enable = "avx2,avx512f,avx512vl,avx512bw,avx512dq")]
-        #[allow(clippy::too_many_arguments)]
-        fn avx512<const G: usize>(
-            lanes: &[&[f32]; LANES],
-            center: usize,
-            stride: usize,
-            r: usize,
-            inv_albedo: f32,
-            cos: f32,
-            sums: &mut GroupSums<G>,
-        ) {
-            window_sums(lanes, center, stride, r, inv_albedo, cos, sums)
+        fn avx512<const G: usize>(taps: &Taps, center: usize, sums: &mut GroupSums<G>) {
+            window_sums(taps, center, sums)
         }
         match kernel.or_portable() {
             // SAFETY: `or_portable` gives Avx512 only when the CPU reports its four extensions.
-            Kernel::Avx512 => {
-                return unsafe { avx512(lanes, center, stride, r, inv_albedo, cos, sums) }
-            }
+            Kernel::Avx512 => return unsafe { avx512(taps, center, sums) },
             // SAFETY: and Avx2 only when it reports AVX2.
-            Kernel::Avx2 => {
-                return unsafe { avx2(lanes, center, stride, r, inv_albedo, cos, sums) }
-            }
+            Kernel::Avx2 => return unsafe { avx2(taps, center, sums) },
             Kernel::Scalar => {}
         }
     }
-    window_sums(lanes, center, stride, r, inv_albedo, cos, sums)
+    window_sums(taps, center, sums)
 }
 
 /// The window sums of the G pixels from plane cell `center`, every tap in turn: the regressors
@@ -422,15 +408,14 @@ fn window_sums_with<const G: usize>(
 /// 2r + 1 terms) and added to the f64 sums; every lane loop is over a fixed G, so it runs in
 /// one or two vector registers.
 #[inline(always)]
-fn window_sums<const G: usize>(
-    lanes: &[&[f32]; LANES],
-    center: usize,
-    stride: usize,
-    r: usize,
-    inv_albedo: f32,
-    cos: f32,
-    sums: &mut GroupSums<G>,
-) {
+fn window_sums<const G: usize>(taps: &Taps, center: usize, sums: &mut GroupSums<G>) {
+    let &Taps {
+        lanes,
+        stride,
+        r,
+        inv_albedo,
+        cos,
+    } = taps;
     let at = |l: usize| load::<G>(lanes[l], center);
     let (fc, ac, nc) = (
         [at(F), at(F + 1), at(F + 2)],
