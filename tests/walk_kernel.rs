@@ -212,6 +212,41 @@ fn every_kernel_equals_the_reference() {
     }
 }
 
+/// Walks long enough that the vector kernel weighs their steps in several chunks: each pixel's only
+/// neighbour of weight above 0 is its twin (pairs of equal colour, σ tiny), so every step has
+/// probability 1 and every walk runs to `max_steps`, far beyond one chunk of records. Every kernel
+/// still equals the reference.
+#[test]
+fn walks_weighed_in_many_chunks_equal_the_reference() {
+    let (w, h) = (4, 2);
+    let color = Image::from_fn(w, h, 3, |x, y, _| 10.0 * (2 * y + x / 2) as f32 + 1.0);
+    let mut set = gsid::Buffers::new();
+    set.insert("color", color.clone()).unwrap();
+    let features = default_features(&color, &set);
+    let params = WalkParams {
+        sigma: 1e-3,
+        walks: 16,
+        window: Some(1),
+        max_steps: 5000,
+        ..WalkParams::default()
+    };
+    let input = job(&color, &features, &params, Engine::Reference);
+    let (want, want_stats) = run(&input);
+    assert_eq!(
+        want_stats.steps,
+        (w * h) as u64 * 16 * 5000,
+        "every walk ran to the cap"
+    );
+    for kernel in Kernel::ALL.into_iter().filter(|k| k.is_available()) {
+        let (got, stats) = run(&WalkJob {
+            engine: Engine::Fast(kernel),
+            ..input
+        });
+        assert_eq!(stats, want_stats, "{kernel:?}");
+        assert_eq!(bits(&got), bits(&want), "{kernel:?}");
+    }
+}
+
 /// Denoising strip by strip (features built per strip plus the window's halo) gives the bits of one
 /// whole-image run, for strips shorter and longer than the window, with a mask, and without a window.
 #[test]
