@@ -377,6 +377,19 @@ struct Lanes {
     ctr: [u64; SLOTS],
 }
 
+impl Lanes {
+    /// Lane `s` takes the next job, if one is left; whether it did.
+    fn take(&mut self, s: usize, jobs: &mut Jobs) -> bool {
+        if jobs.next >= jobs.total {
+            return false;
+        }
+        (self.cell[s], self.pixel[s], self.ctr[s]) = jobs.start(jobs.next);
+        self.job[s] = jobs.next;
+        jobs.next += 1;
+        true
+    }
+}
+
 /// Groups of SLOTS walks that step in turn. A step is one chain of dependent operations, so one
 /// group leaves the core idle while it waits; a second group's chain, independent of the first,
 /// fills those cycles.
@@ -458,11 +471,10 @@ impl Group {
         };
         let mut live = 0i32;
         for s in 0..SLOTS {
-            (st.cell[s], st.pixel[s], st.ctr[s]) = jobs.start(jobs.next.min(jobs.total - 1));
-            if jobs.next < jobs.total {
-                st.job[s] = jobs.next;
+            if st.take(s, jobs) {
                 live |= 1 << s;
-                jobs.next += 1;
+            } else {
+                (st.cell[s], st.pixel[s], st.ctr[s]) = jobs.start(jobs.total - 1);
             }
         }
         Group {
@@ -607,10 +619,7 @@ impl Group {
             bits &= bits - 1;
             steps += st.step[s] as u64;
             ends.push(st.job[s]);
-            if jobs.next < jobs.total {
-                (st.cell[s], st.pixel[s], st.ctr[s]) = jobs.start(jobs.next);
-                st.job[s] = jobs.next;
-                jobs.next += 1;
+            if st.take(s, jobs) {
                 refilled |= 1 << s;
             } else {
                 self.live &= !(1 << s);

@@ -72,19 +72,25 @@ fn step_weights(rec: &Record, going_v: __m256i) -> __m256 {
     exp_neg8(ratio)
 }
 
-/// Each moving lane's colour, channel `ch`, as 8 f32 (0 elsewhere).
-///
-/// # Safety
-/// Every pixel of a moving lane must index `color`'s pixels.
+/// Where each moving lane's colour starts in the interleaved colour (0 for the others): the
+/// gathers' index, the same for all three channels.
 #[inline]
 #[target_feature(enable = "avx2")]
-unsafe fn colours(rec: &Record, going_v: __m256i, color: *const f32, ch: usize) -> __m256 {
-    let pixel = _mm256_loadu_si256(rec.pixel.as_ptr().cast());
+fn colour_index(rec: &Record, going_v: __m256i) -> __m256i {
+    // SAFETY: reads the record's 8 pixels.
+    let pixel = unsafe { _mm256_loadu_si256(rec.pixel.as_ptr().cast()) };
     let at3 = _mm256_mullo_epi32(pixel, _mm256_set1_epi32(3));
-    _mm256_i32gather_ps::<4>(
-        color.add(ch),
-        _mm256_blendv_epi8(_mm256_setzero_si256(), at3, going_v),
-    )
+    _mm256_blendv_epi8(_mm256_setzero_si256(), at3, going_v)
+}
+
+/// Channel `ch` of the colours at `index` ([`colour_index`]), as 8 f32.
+///
+/// # Safety
+/// Every index must be a pixel of `color`.
+#[inline]
+#[target_feature(enable = "avx2")]
+unsafe fn colours(index: __m256i, color: *const f32, ch: usize) -> __m256 {
+    _mm256_i32gather_ps::<4>(color.add(ch), index)
 }
 
 impl Weigh {
@@ -115,13 +121,18 @@ impl Weigh {
             self.run_wide(records, ends, color, parts);
             return;
         }
-        let at = |k: usize, h: usize| _mm256_loadu_pd(self.sums[k][4 * h..].as_ptr());
-        let mut sum = [
-            [at(0, 0), at(0, 1)],
-            [at(1, 0), at(1, 1)],
-            [at(2, 0), at(2, 1)],
-        ];
-        let mut weight = [at(3, 0), at(3, 1)];
+        // Colour channels, then the weight; two registers of four lanes each.
+        let mut acc: [[__m256d; 2]; 4] = std::array::from_fn(|k| {
+            let lane = |h: usize| _mm256_loadu_pd(self.sums[k][4 * h..].as_ptr());
+            [lane(0), lane(1)]
+        });
+        let store = |acc: &[[__m256d; 2]; 4], sums: &mut [[f64; SLOTS]; 4]| {
+            for (a, out) in acc.iter().zip(sums) {
+                for h in 0..2 {
+                    _mm256_storeu_pd(out[4 * h..].as_mut_ptr(), a[h]);
+                }
+            }
+        };
         let mut ends = ends.iter();
         for rec in records {
             let going_v = lanes(rec.going);
@@ -131,40 +142,29 @@ impl Weigh {
                 _mm256_and_pd(wgt[0], moved[0]),
                 _mm256_and_pd(wgt[1], moved[1]),
             ];
-            for (ch, acc) in sum.iter_mut().enumerate() {
-                let col = to_f64(colours(rec, going_v, color, ch));
+            let index = colour_index(rec, going_v);
+            for ch in 0..3 {
+                let col = to_f64(colours(index, color, ch));
                 for h in 0..2 {
-                    acc[h] = add_where(acc[h], _mm256_mul_pd(wgt[h], col[h]), moved[h]);
+                    acc[ch][h] = add_where(acc[ch][h], _mm256_mul_pd(wgt[h], col[h]), moved[h]);
                 }
             }
             for h in 0..2 {
-                weight[h] = add_where(weight[h], wgt[h], moved[h]);
+                acc[3][h] = add_where(acc[3][h], wgt[h], moved[h]);
             }
             if rec.ended != 0 {
-                let mut sums = [[0.0f64; SLOTS]; 4];
-                for h in 0..2 {
-                    _mm256_storeu_pd(sums[3][4 * h..].as_mut_ptr(), weight[h]);
-                    for ch in 0..3 {
-                        _mm256_storeu_pd(sums[ch][4 * h..].as_mut_ptr(), sum[ch][h]);
-                    }
-                }
-                hand_in(rec.ended, &sums, &mut ends, parts);
+                store(&acc, &mut self.sums);
+                hand_in(rec.ended, &self.sums, &mut ends, parts);
                 let reset = widen(lanes(rec.ended));
-                for h in 0..2 {
-                    weight[h] = _mm256_andnot_pd(reset[h], weight[h]);
-                    for ch in 0..3 {
-                        sum[ch][h] = _mm256_andnot_pd(reset[h], sum[ch][h]);
+                for a in &mut acc {
+                    for h in 0..2 {
+                        a[h] = _mm256_andnot_pd(reset[h], a[h]);
                     }
                 }
             }
         }
         debug_assert!(ends.next().is_none(), "a job for a walk that did not end");
-        for h in 0..2 {
-            _mm256_storeu_pd(self.sums[3][4 * h..].as_mut_ptr(), weight[h]);
-            for ch in 0..3 {
-                _mm256_storeu_pd(self.sums[ch][4 * h..].as_mut_ptr(), sum[ch][h]);
-            }
-        }
+        store(&acc, &mut self.sums);
     }
 
     /// [`run`](Weigh::run) with each sum's eight lanes in one AVX-512 register and the lanes
@@ -181,22 +181,25 @@ impl Weigh {
         parts: &mut [Accum],
     ) {
         let mut acc: [__m512d; 4] = std::array::from_fn(|k| _mm512_loadu_pd(self.sums[k].as_ptr()));
+        let store = |acc: &[__m512d; 4], sums: &mut [[f64; SLOTS]; 4]| {
+            for (a, out) in acc.iter().zip(sums) {
+                _mm512_storeu_pd(out.as_mut_ptr(), *a);
+            }
+        };
         let mut ends = ends.iter();
         for rec in records {
             let going_v = lanes(rec.going);
             let moved = rec.going as __mmask8;
             let wgt = _mm512_maskz_mov_pd(moved, _mm512_cvtps_pd(step_weights(rec, going_v)));
+            let index = colour_index(rec, going_v);
             for ch in 0..3 {
-                let col = _mm512_cvtps_pd(colours(rec, going_v, color, ch));
+                let col = _mm512_cvtps_pd(colours(index, color, ch));
                 acc[ch] = _mm512_mask_add_pd(acc[ch], moved, acc[ch], _mm512_mul_pd(wgt, col));
             }
             acc[3] = _mm512_mask_add_pd(acc[3], moved, acc[3], wgt);
             if rec.ended != 0 {
-                let mut sums = [[0.0f64; SLOTS]; 4];
-                for k in 0..4 {
-                    _mm512_storeu_pd(sums[k].as_mut_ptr(), acc[k]);
-                }
-                hand_in(rec.ended, &sums, &mut ends, parts);
+                store(&acc, &mut self.sums);
+                hand_in(rec.ended, &self.sums, &mut ends, parts);
                 let kept = !(rec.ended as __mmask8);
                 for a in &mut acc {
                     *a = _mm512_maskz_mov_pd(kept, *a);
@@ -204,9 +207,7 @@ impl Weigh {
             }
         }
         debug_assert!(ends.next().is_none(), "a job for a walk that did not end");
-        for k in 0..4 {
-            _mm512_storeu_pd(self.sums[k].as_mut_ptr(), acc[k]);
-        }
+        store(&acc, &mut self.sums);
     }
 }
 

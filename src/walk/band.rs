@@ -152,6 +152,9 @@ impl<'a> Band<'a> {
             let vector = kernel.avx2() && radius.is_some() && avx2::fits(near);
             #[cfg(not(target_arch = "x86_64"))]
             let vector = false;
+            // Whether the AVX2 kernel weighs its steps in AVX-512 registers.
+            #[cfg(target_arch = "x86_64")]
+            let wide = kernel.or_portable() == Kernel::Avx512;
             // Start pixels whose walks share the AVX2 kernel's lanes.
             let cells = radius.map_or(0, |r| (2 * r + 3) * (2 * r + 3));
             let batch = match vector {
@@ -185,8 +188,8 @@ impl<'a> Band<'a> {
                             match vector {
                                 #[cfg(target_arch = "x86_64")]
                                 // SAFETY: `vector` holds only if the CPU reported AVX2 above
-                                // and `fits` holds for `near`; `or_portable` gives Avx512 only
-                                // where the CPU has AVX-512.
+                                // and `fits` holds for `near`; `wide` only if it reported
+                                // AVX-512 (`or_portable`).
                                 true => unsafe {
                                     avx2::walk_batch(
                                         input,
@@ -198,7 +201,7 @@ impl<'a> Band<'a> {
                                             side: 2 * r + 3,
                                             starts: &scratch.starts,
                                         },
-                                        kernel.or_portable() == Kernel::Avx512,
+                                        wide,
                                         &mut scratch.walks,
                                         &mut scratch.accs,
                                     )

@@ -15,8 +15,9 @@
 //! recomputed, the readable spec) or the fast kernels, which precompute the x0-independent terms
 //! per band of rows (`tables`, `band`) and, with a window, the x0 terms per window cell, and step
 //! lane by lane (`scalar`) or two groups of eight walks in turn (`avx2`; its weighing in AVX-512
-//! registers where the CPU has them), over the whole image or strip by strip (`strips`). All consume the same random numbers (`rng`) and run the same step (`step`), so they
-//! agree bit for bit.
+//! registers where the CPU has them), over the whole image or strip by strip (`strips`). All
+//! consume the same random numbers (`rng`) and run the same step (`step`), so they agree bit for
+//! bit.
 
 // Lane loops index several 8-wide arrays at once; indices read better than zipped iterators.
 #![allow(clippy::needless_range_loop)]
