@@ -7,11 +7,11 @@
 mod common;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use gsid::noise;
-use gsid::prefilter::{self, Kind};
+use gsid::filters::noise::kernel as noise;
+use gsid::filters::prefilter::kernel::{self as prefilter, Kind};
+use gsid::filters::prefilter::PrefilterParams;
+use gsid::kernels::simd::Kernel;
 use gsid::render_set::Feature;
-use gsid::simd::Kernel;
-use gsid::stages::prefilter::PrefilterParams;
 
 fn bench_noise(c: &mut Criterion) {
     let (set, variance, filtered) = common::textured_4spp();

@@ -7,10 +7,10 @@
 mod common;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use gsid::regress;
+use gsid::filters::regress::kernel as regress;
+use gsid::filters::regress::RegressParams;
+use gsid::kernels::simd::Kernel;
 use gsid::render_set::Feature;
-use gsid::simd::Kernel;
-use gsid::stages::regress::RegressParams;
 
 fn bench_regress(c: &mut Criterion) {
     let (set, variance, filtered) = common::textured_4spp();

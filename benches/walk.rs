@@ -7,7 +7,7 @@ use std::path::Path;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use gsid::features::{Features, Tone, Weights};
-use gsid::walk::{self, Engine, FeatureSource, Kernel, WalkJob, WalkParams};
+use gsid::filters::gsid::walk::{self, Engine, FeatureSource, Kernel, WalkJob, WalkParams};
 use gsid::{condition, io};
 
 fn bench_walks(c: &mut Criterion) {

@@ -20,8 +20,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::image::Image;
+use crate::kernels::simd::Kernel;
 use crate::render_set::{Feature, FeatureSet};
-use crate::simd::Kernel;
 
 /// Floats per pixel record (padded to a cache line).
 pub const FEATURE_LANES: usize = 16;
@@ -272,7 +272,7 @@ pub struct Recipe<'a> {
 impl<'a> Recipe<'a> {
     /// The recipe for `color` and the feature buffers `features`, weighted by `weights`, the
     /// tone-mapped colour of every pixel multiplied by its `color_scale` when given (one factor per
-    /// image pixel: colour differences in units of the local noise, `crate::noise::color_scales`).
+    /// image pixel: colour differences in units of the local noise, `crate::filters::noise::kernel::color_scales`).
     pub fn new(
         color: &'a Image,
         features: &'a FeatureSet,
@@ -679,7 +679,7 @@ mod tests {
 
     /// A colour buffer and a set of random albedo, normal and depth (and material and shadow).
     fn random_set(w: usize, h: usize, material: bool, seed: u64) -> (Image, Buffers) {
-        let mut next = crate::trim::tests::xorshift(seed);
+        let mut next = crate::kernels::trim::tests::xorshift(seed);
         let mut random = |c: usize| {
             let v = (0..w * h * c).map(|_| (next() >> 40) as f32 / (1u64 << 24) as f32);
             Image::from_vec(w, h, c, v.collect()).unwrap()

@@ -37,39 +37,26 @@
 //! # }
 //! ```
 
-pub mod atrous;
-#[cfg(feature = "cli")]
-pub mod batch;
 pub mod buffers;
 #[cfg(feature = "cli")]
 pub mod cli;
 pub mod condition;
 pub mod error;
-pub mod fastmath;
 pub mod features;
+pub mod filters;
 pub mod image;
 pub mod io;
+pub mod kernels;
 pub mod metrics;
-pub mod noise;
-pub mod outlier;
-pub(crate) mod padded;
 pub mod pipeline;
-pub mod prefilter;
 pub mod progress;
-pub mod pyramid;
-pub mod regress;
 #[cfg(feature = "cli")]
 pub mod render;
 pub mod render_set;
 pub mod run;
-pub mod simd;
 pub mod spec;
-pub mod stages;
 #[cfg(feature = "cli")]
 pub mod study;
-pub(crate) mod trim;
-pub mod walk;
-pub(crate) mod window_bits;
 
 pub use crate::buffers::Buffers;
 pub use crate::error::{Error, Result};

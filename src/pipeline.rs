@@ -8,9 +8,9 @@ use serde::Serialize;
 use crate::buffers::{Buffers, COLOR};
 use crate::condition::{Conditioning, SanitizeReport};
 use crate::error::{Error, Result};
+use crate::filters::{self, Context, Stage, StageReport};
 use crate::image::Image;
 pub use crate::spec::{PipelineSpec, StageSpec, BUILTIN, OUTPUT_BUFFER};
-use crate::stages::{self, Context, Stage, StageReport};
 
 /// The pipeline `gsid denoise` runs without `--pipeline`.
 pub const DEFAULT_PIPELINE: &str = "full";
@@ -51,7 +51,7 @@ impl Pipeline {
         let stages = spec
             .stages
             .iter()
-            .map(|s| stages::build(s).map_err(|e| e.in_file(&spec.origin)))
+            .map(|s| filters::build(s).map_err(|e| e.in_file(&spec.origin)))
             .collect::<Result<Vec<_>>>()?;
         Ok(Pipeline {
             name: spec.name.clone(),

@@ -4,9 +4,9 @@
 mod common;
 
 use common::{assert_set_refused, default_features, synthetic_set};
-use gsid::atrous::pass_with;
 use gsid::features::{FeaturePlanes, Features, Recipe, Tone, Weights};
-use gsid::simd::Kernel;
+use gsid::filters::atrous::kernel::pass_with;
+use gsid::kernels::simd::Kernel;
 use gsid::{Buffers, Image};
 
 fn bits(img: &Image) -> Vec<u32> {
@@ -98,7 +98,7 @@ fn textbook_pass(
     step: usize,
     sigma: f32,
 ) -> Image {
-    use gsid::atrous::TAPS;
+    use gsid::filters::atrous::kernel::TAPS;
     let (w, h) = color.dims();
     let inv = 1.0 / (2.0 * sigma * sigma);
     let keep = |i: usize| if mask.is_some_and(|m| m[i]) { 0.0 } else { 1.0 };
@@ -113,7 +113,7 @@ fn textbook_pass(
                 }
                 let (i, j) = (y * w + x, ny as usize * w + nx as usize);
                 let d = f.distance(i, j);
-                let e = gsid::fastmath::exp_neg(-(d * d) * inv);
+                let e = gsid::kernels::fastmath::exp_neg(-(d * d) * inv);
                 let wgt = (ha * hb * e * keep(j) * keep(i)) as f64;
                 sum += wgt * color.pixel(j)[k] as f64;
                 weight += wgt;

@@ -9,8 +9,9 @@
 
 use std::path::Path;
 
+use gsid::filters::noise::kernel as noise;
 use gsid::render_set::Feature;
-use gsid::{io, noise, Buffers, Image, PipelineSpec, RenderSet};
+use gsid::{io, Buffers, Image, PipelineSpec, RenderSet};
 
 const FIXTURES: [&str; 4] = ["cornell", "caustics", "textured", "detail"];
 
@@ -224,7 +225,7 @@ fn noise_power_zero_is_a_fixed_sigma() {
 
 #[test]
 fn both_kernels_give_the_same_bits() {
-    use gsid::simd::Kernel;
+    use gsid::kernels::simd::Kernel;
     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
     for (w, h) in [(1, 1), (2, 3), (5, 4), (23, 17), (41, 9)] {
         // Noisy colour over three albedos, two normals and a depth step, so pixels have every

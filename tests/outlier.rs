@@ -5,9 +5,9 @@ mod common;
 use std::path::Path;
 
 use common::{synthetic_set, FIXTURE};
-use gsid::outlier::{self, luminance, Action, Detection, Guides, Rule};
+use gsid::filters::outlier::kernel::{self as outlier, luminance, Action, Detection, Guides, Rule};
+use gsid::filters::outlier::OutlierParams;
 use gsid::pipeline::PipelineSpec;
-use gsid::stages::outlier::OutlierParams;
 use gsid::{io, Buffers, Image};
 use rand::rngs::Xoshiro256PlusPlus;
 use rand::{Rng, SeedableRng};

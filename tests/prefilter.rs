@@ -2,9 +2,9 @@
 //! albedo and normal against the clean ones, keeps a sharp edge and a checker texture when the
 //! noise is low, stays finite on hard cases, and gives the same bits on 1 and 2 threads.
 
-use gsid::prefilter::{self, Kind, Params};
+use gsid::filters::prefilter::kernel::{self as prefilter, Kind, Params};
+use gsid::filters::prefilter::{Estimate, PrefilterParams};
 use gsid::render_set::Feature;
-use gsid::stages::prefilter::{Estimate, PrefilterParams};
 use gsid::{Buffers, Image, PipelineSpec, RenderSet};
 
 /// The `prefilter` stage's defaults.
@@ -339,8 +339,14 @@ fn both_kernels_give_the_same_bits() {
             (&depth, Kind::Depth),
         ] {
             for keep in [0.65, 0.3] {
-                let scalar = prefilter::variance_with(gsid::simd::Kernel::Scalar, img, kind, keep);
-                let fast = prefilter::variance_with(gsid::simd::Kernel::detect(), img, kind, keep);
+                let scalar =
+                    prefilter::variance_with(gsid::kernels::simd::Kernel::Scalar, img, kind, keep);
+                let fast = prefilter::variance_with(
+                    gsid::kernels::simd::Kernel::detect(),
+                    img,
+                    kind,
+                    keep,
+                );
                 let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                 assert_eq!(
                     bits(&scalar),
@@ -348,8 +354,20 @@ fn both_kernels_give_the_same_bits() {
                     "{w}x{h} {kind:?} keep {keep}: variance"
                 );
                 let p = Params { keep, ..params() };
-                let a = prefilter::filter_with(gsid::simd::Kernel::Scalar, img, &fast, kind, &p);
-                let b = prefilter::filter_with(gsid::simd::Kernel::detect(), img, &fast, kind, &p);
+                let a = prefilter::filter_with(
+                    gsid::kernels::simd::Kernel::Scalar,
+                    img,
+                    &fast,
+                    kind,
+                    &p,
+                );
+                let b = prefilter::filter_with(
+                    gsid::kernels::simd::Kernel::detect(),
+                    img,
+                    &fast,
+                    kind,
+                    &p,
+                );
                 assert_eq!(bits(a.data()), bits(b.data()), "{w}x{h} {kind:?}: filter");
                 assert!(b.data().iter().all(|v| v.is_finite()));
             }

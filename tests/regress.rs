@@ -6,8 +6,8 @@
 mod common;
 
 use common::assert_set_refused;
-use gsid::regress::{refine_with, regress_with, Inputs, Params};
-use gsid::simd::Kernel;
+use gsid::filters::regress::kernel::{refine_with, regress_with, Inputs, Params};
+use gsid::kernels::simd::Kernel;
 use gsid::Image;
 
 fn bits(img: &Image) -> Vec<u32> {

@@ -4,7 +4,9 @@ mod common;
 
 use common::{default_features, synthetic_set};
 use gsid::features::{Features, Tone, Weights};
-use gsid::walk::{self, Engine, FeatureSource, Kernel, WalkJob, WalkParams, WalkStats};
+use gsid::filters::gsid::walk::{
+    self, Engine, FeatureSource, Kernel, WalkJob, WalkParams, WalkStats,
+};
 use gsid::Image;
 use proptest::prelude::*;
 

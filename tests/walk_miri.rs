@@ -9,7 +9,7 @@ mod common;
 
 use common::synthetic_set;
 use gsid::features::{Features, Tone, Weights};
-use gsid::walk::{self, Engine, FeatureSource, Kernel, WalkJob, WalkParams};
+use gsid::filters::gsid::walk::{self, Engine, FeatureSource, Kernel, WalkJob, WalkParams};
 use gsid::{FeatureSet, Image};
 
 fn bits(img: &Image) -> Vec<u32> {

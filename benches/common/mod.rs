@@ -3,8 +3,9 @@
 
 use std::path::Path;
 
+use gsid::filters::noise::kernel as noise;
 use gsid::render_set::RenderSet;
-use gsid::{condition, io, noise, Image};
+use gsid::{condition, io, Image};
 
 /// The 128×128 `textured` set at 4 spp, its noise estimate, and the input with half its noise's
 /// standard deviation added (a stand-in for a filtered image: close to the input, not equal).

@@ -38,7 +38,7 @@ impl Sampler {
 }
 
 /// SplitMix64 (the walks' own): spreads nearby integers over the whole seed space.
-pub use crate::walk::rng::splitmix as mix;
+pub use crate::filters::gsid::walk::rng::splitmix as mix;
 
 /// What one camera path contributes to the six buffers.
 #[derive(Clone, Copy, Debug)]

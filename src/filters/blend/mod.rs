@@ -1,0 +1,143 @@
+//! The `blend` stage: never worse than the input where the input is good. Mixes a filtered image
+//! with the colour it came from, per pixel, by the Wiener weight of `crate::filters::noise::kernel::keep_weights`.
+//!
+//! ```toml
+//! [[stage]]
+//! kind = "blend"
+//! input = "out"          # the filtered image
+//! original = "color"     # what it was filtered from
+//! noise = "noise"        # the original's variance (a `noise` stage's output)
+//! output = "out"
+//! tolerance = 1.5        # slack for the error of both estimates (the presets use 2)
+//! leak = 4.0             # a rise beyond √leak noise σ is light leaked from a neighbour
+//! ```
+
+use serde::{Deserialize, Serialize};
+
+use super::{parse_params, Context, Stage, StageIo};
+use crate::buffers::{Buffers, COLOR};
+use crate::error::{Error, Result};
+use crate::filters::noise::kernel as noise;
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BlendParams {
+    pub original: String,
+    pub noise: String,
+    /// How far the filter's measured change may exceed the noise before the input comes back:
+    /// slack for the error of both estimates.
+    pub tolerance: f64,
+    /// How many noise variances above its input a pixel's filtered value may rise before it
+    /// counts as light leaked from a neighbour the features cannot tell apart.
+    pub leak: f64,
+}
+
+impl Default for BlendParams {
+    fn default() -> Self {
+        BlendParams {
+            original: COLOR.to_string(),
+            noise: "noise".to_string(),
+            tolerance: 1.5,
+            leak: 4.0,
+        }
+    }
+}
+
+impl BlendParams {
+    /// Checks every key against its allowed range; the error names the key. Both factors scale a
+    /// variance, so 0 or less would hand back the input everywhere or push past it.
+    pub fn validate(&self) -> Result<()> {
+        for (key, value) in [("tolerance", self.tolerance), ("leak", self.leak)] {
+            if !(value > 0.0 && value <= 1e6) {
+                return Err(Error::range(key, value, "above 0, at most 1e6"));
+            }
+        }
+        Ok(())
+    }
+}
+
+pub struct BlendStage {
+    id: String,
+    io: StageIo,
+    pub params: BlendParams,
+}
+
+impl BlendStage {
+    pub fn from_table(id: &str, io: StageIo, table: toml::Table) -> Result<Self> {
+        let params: BlendParams = parse_params(id, table)?;
+        params.validate().map_err(|e| e.in_context(id))?;
+        Ok(BlendStage {
+            id: id.to_string(),
+            io,
+            params,
+        })
+    }
+}
+
+impl Stage for BlendStage {
+    fn id(&self) -> &str {
+        &self.id
+    }
+
+    fn requires(&self) -> Vec<String> {
+        vec![
+            self.io.input.clone(),
+            self.params.original.clone(),
+            self.params.noise.clone(),
+        ]
+    }
+
+    fn writes(&self) -> Vec<String> {
+        vec![self.io.output.clone()]
+    }
+
+    fn execute_impl(&self, buffers: &mut Buffers, _ctx: &mut Context) -> Result<u64> {
+        let (filtered, original, variance) = super::filtered_original_noise(
+            buffers,
+            &self.io.input,
+            &self.params.original,
+            &self.params.noise,
+        )?;
+        let keep = noise::keep_weights(
+            crate::kernels::simd::Kernel::detect(),
+            original,
+            filtered,
+            variance,
+            buffers.features(),
+            self.params.tolerance,
+            self.params.leak,
+        );
+        let mut out = filtered.par_clone();
+        for (i, px) in out.data_mut().chunks_exact_mut(3).enumerate() {
+            let o = original.pixel(i);
+            for k in 0..3 {
+                px[k] = o[k] + keep[i] * (px[k] - o[k]);
+            }
+        }
+        buffers.insert(self.io.output.clone(), out)?;
+        Ok(0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::pipeline::PipelineSpec;
+
+    #[test]
+    fn out_of_range_factors_are_named() {
+        for (key, value) in [
+            ("leak", "-1"),
+            ("leak", "0"),
+            ("tolerance", "nan"),
+            ("leak", "1e9"),
+        ] {
+            let mut spec = PipelineSpec::builtin("full").unwrap();
+            spec.apply_set(&format!("blend.{key}={value}")).unwrap();
+            let err = spec.build().err().expect("rejected").to_string();
+            assert!(
+                err.contains(&format!("blend.{key}")) && err.contains("above 0"),
+                "{err}"
+            );
+        }
+    }
+}

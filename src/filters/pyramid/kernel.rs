@@ -1,0 +1,573 @@
+//! Gaussian/Laplacian pyramids and Laplacian blending (docs/ALGORITHM.md §4).
+//!
+//! REDUCE is a sum-1 Gaussian (σ = 1 source pixel, close to the 5-tap binomial) followed by halving
+//! (odd sizes round up); EXPAND interpolates back to a stored size with the same Gaussian in coarse
+//! pixels. Both are convolution resamplings by `fast_image_resize` with a custom filter, which
+//! renormalises the kernel at borders, so energy is kept there too. Blending uses the very same REDUCE
+//! and EXPAND for building and collapsing, so an untouched pyramid reconstructs its input up to float
+//! rounding whatever the filters are.
+
+use fast_image_resize as fr;
+use rayon::prelude::*;
+
+use crate::buffers::Buffers;
+use crate::error::{Error, Result};
+use crate::image::Image;
+use crate::kernels::fastmath::exp_neg;
+use crate::render_set::Feature;
+
+/// Levels stop before either side would drop below this many pixels.
+pub const MIN_LEVEL_SIZE: usize = 4;
+
+/// The Gaussian used by REDUCE and EXPAND, in destination pixels when downscaling (σ = 0.5 there is
+/// σ = 1 source pixel) and in source pixels when upscaling.
+fn gaussian(x: f64) -> f64 {
+    (-2.0 * x * x).exp()
+}
+
+fn filter() -> fr::FilterType {
+    // Support 1.5 = 3σ; the constructor only fails for a non-positive support.
+    fr::FilterType::Custom(
+        fr::Filter::new("gaussian-0.5", gaussian, 1.5).expect("positive support"),
+    )
+}
+
+fn pixel_type(channels: usize) -> Result<fr::PixelType> {
+    match channels {
+        1 => Ok(fr::PixelType::F32),
+        2 => Ok(fr::PixelType::F32x2),
+        3 => Ok(fr::PixelType::F32x3),
+        4 => Ok(fr::PixelType::F32x4),
+        c => Err(Error::Usage(format!("cannot resample a {c}-channel image"))),
+    }
+}
+
+/// Resamples `img` to `w × h` with the pyramid Gaussian.
+pub fn resample(img: &Image, w: usize, h: usize) -> Result<Image> {
+    if img.dims() == (w, h) {
+        return Ok(img.clone());
+    }
+    let pt = pixel_type(img.channels())?;
+    let src = fr::images::ImageRef::new(
+        img.width() as u32,
+        img.height() as u32,
+        bytemuck::cast_slice(img.data()),
+        pt,
+    )
+    .map_err(|e| Error::Runtime(format!("resample: {e}")))?;
+    let mut dst = fr::images::Image::new(w as u32, h as u32, pt);
+    let options = fr::ResizeOptions::new().resize_alg(fr::ResizeAlg::Convolution(filter()));
+    fr::Resizer::new()
+        .resize(&src, &mut dst, &options)
+        .map_err(|e| Error::Runtime(format!("resample: {e}")))?;
+    let data: Vec<f32> = bytemuck::cast_slice(dst.buffer()).to_vec();
+    Image::from_vec(w, h, img.channels(), data)
+}
+
+/// Size of the next coarser level.
+pub fn half(w: usize, h: usize) -> (usize, usize) {
+    (w.div_ceil(2), h.div_ceil(2))
+}
+
+/// REDUCE: blur and halve.
+pub fn reduce(img: &Image) -> Result<Image> {
+    let (w, h) = half(img.width(), img.height());
+    resample(img, w, h)
+}
+
+/// EXPAND: interpolate up to the stored finer size.
+pub fn expand(img: &Image, w: usize, h: usize) -> Result<Image> {
+    resample(img, w, h)
+}
+
+/// How many levels an image of `w × h` allows, up to `wanted`.
+pub fn allowed_levels(w: usize, h: usize, wanted: usize) -> usize {
+    let (mut w, mut h) = (w, h);
+    let mut levels = 1;
+    while levels < wanted {
+        let (nw, nh) = half(w, h);
+        if nw < MIN_LEVEL_SIZE || nh < MIN_LEVEL_SIZE {
+            break;
+        }
+        (w, h) = (nw, nh);
+        levels += 1;
+    }
+    levels
+}
+
+/// Depth REDUCE: the nearest surface of each 2×2 block, so no phantom depths between surfaces appear.
+pub fn reduce_min(img: &Image) -> Image {
+    let (w, h) = img.dims();
+    let (nw, nh) = half(w, h);
+    let c = img.channels();
+    Image::from_fn(nw, nh, c, |x, y, ch| {
+        let mut m = f32::INFINITY;
+        for yy in 2 * y..(2 * y + 2).min(h) {
+            for xx in 2 * x..(2 * x + 2).min(w) {
+                m = m.min(img.at(xx, yy)[ch]);
+            }
+        }
+        m
+    })
+}
+
+/// Scales every non-zero 3-vector back to unit length (zero stays "unknown").
+pub fn renormalize(img: &mut Image) {
+    for n in img.data_mut().chunks_exact_mut(3) {
+        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        if len > 1e-6 {
+            n.iter_mut().for_each(|v| *v /= len);
+        } else {
+            n.fill(0.0);
+        }
+    }
+}
+
+/// REDUCE of colour that ignores masked pixels (normalised convolution), so a masked firefly does not
+/// spread into coarse levels. Returns the colour and the coarse mask (set where no valid pixel fed it).
+pub fn reduce_masked(color: &Image, mask: &Image) -> Result<(Image, Image)> {
+    let (w, h) = color.dims();
+    let valid = Image::from_fn(
+        w,
+        h,
+        1,
+        |x, y, _| if mask.at(x, y)[0] > 0.5 { 0.0 } else { 1.0 },
+    );
+    let weighted = Image::from_fn(w, h, 3, |x, y, c| color.at(x, y)[c] * valid.at(x, y)[0]);
+    let (nw, nh) = half(w, h);
+    let num = resample(&weighted, nw, nh)?;
+    let den = resample(&valid, nw, nh)?;
+    let plain = resample(color, nw, nh)?;
+    let mut out = Image::new(nw, nh, 3);
+    let mut coarse_mask = Image::new(nw, nh, 1);
+    for i in 0..nw * nh {
+        let d = den.pixel(i)[0];
+        if d > 1e-3 {
+            for c in 0..3 {
+                out.pixel_mut(i)[c] = (num.pixel(i)[c] / d).max(0.0);
+            }
+        } else {
+            out.pixel_mut(i).copy_from_slice(plain.pixel(i));
+            coarse_mask.pixel_mut(i)[0] = 1.0;
+        }
+    }
+    Ok((out, coarse_mask))
+}
+
+/// The next coarser level of every buffer: colour-like buffers by REDUCE, normals renormalised,
+/// depth by nearest surface, the colour `input` masked by `mask` when one is given.
+pub fn reduce_buffers(buffers: &Buffers, input: &str, mask: Option<&str>) -> Result<Buffers> {
+    let masked = match (mask, buffers.get(input)) {
+        (Some(m), Some(color)) => match buffers.get(m) {
+            Some(mask_img) => Some(reduce_masked(color, mask_img)?),
+            None => None,
+        },
+        _ => None,
+    };
+    let mut out = Buffers::new();
+    for (name, img) in buffers.iter() {
+        let reduced = match &masked {
+            Some((color, _)) if name == input => color.clone(),
+            Some((_, m)) if Some(name) == mask => m.clone(),
+            _ => match Feature::from_name(name) {
+                Some(feature) => reduce_feature(feature, img)?,
+                None => reduce(img)?,
+            },
+        };
+        out.insert(name, reduced)?;
+    }
+    Ok(out)
+}
+
+/// REDUCE of one feature buffer: depth by nearest surface (no phantom depths between two
+/// surfaces), normals renormalised, the rest as colour.
+pub fn reduce_feature(feature: Feature, img: &Image) -> Result<Image> {
+    Ok(match feature {
+        Feature::Depth => reduce_min(img),
+        Feature::Normal => {
+            let mut n = reduce(img)?;
+            renormalize(&mut n);
+            n
+        }
+        Feature::Albedo | Feature::Material | Feature::Shadow => reduce(img)?,
+    })
+}
+
+/// Where the bands of Laplacian blending are formed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BlendDomain {
+    /// Bands of linear radiance: the textbook form; halos around bright HDR edges.
+    Linear,
+    /// Bands of ln(x + ε): a coarse-level change acts as a ratio, so a correction next to a light does
+    /// not swamp a dark neighbour.
+    Log,
+}
+
+/// Offset of the log domain: about the noise floor that relMSE also forgives (its 0.01 is ε²).
+const LOG_EPS: f32 = 0.1;
+
+impl BlendDomain {
+    fn forward(self, img: &mut Image) {
+        if self == BlendDomain::Log {
+            img.data_mut()
+                .par_chunks_mut(1 << 14)
+                .for_each(|c| c.iter_mut().for_each(|v| *v = (v.max(0.0) + LOG_EPS).ln()));
+        }
+    }
+
+    fn inverse(self, img: &mut Image) {
+        if self == BlendDomain::Log {
+            img.data_mut()
+                .par_chunks_mut(1 << 14)
+                .for_each(|c| c.iter_mut().for_each(|v| *v = v.exp() - LOG_EPS));
+        }
+    }
+}
+
+/// A tap pattern's column offsets and its 4×4 spatial weights.
+type TapWeights = ([f32; 4], [[f32; 4]; 4]);
+
+/// Range scale of the guided EXPAND, in the blend domain (log: 0.5 ≈ a factor 1.6 in brightness).
+const GUIDE_SIGMA: f32 = 0.5;
+
+/// EXPAND of a coarse correction `c` to the fine size, guided by the fine image `fine` and its
+/// REDUCE `coarse_guide` (all in the blend domain): joint bilateral upsampling (Kopf et al. 2007).
+/// A fine pixel takes corrections only from coarse pixels that look like it, so a change made at a
+/// mixed light/ceiling pixel does not spill onto the ceiling. Zero correction expands to exactly zero.
+fn guided_expand(c: &Image, fine: &Image, coarse_guide: &Image) -> Image {
+    let (w, h) = fine.dims();
+    let (cw, ch) = c.dims();
+    let inv_r = 1.0 / (2.0 * GUIDE_SIGMA * GUIDE_SIGMA);
+    let mut out = Image::new(w, h, 3);
+    // Rows are independent: one parallel task per row.
+    out.data_mut()
+        .par_chunks_mut(3 * w.max(1))
+        .enumerate()
+        .for_each(|(y, row)| {
+            let fy = (y as f32 + 0.5) * ch as f32 / h as f32 - 0.5;
+            let y0 = fy.floor() as isize;
+            // The spatial weights of the 4×4 taps depend only on the taps' offsets, which repeat
+            // along a row (two patterns, alternating, at an exact 2× EXPAND): kept for the last two
+            // offsets seen.
+            let mut cached: [Option<TapWeights>; 2] = [None, None];
+            for x in 0..w {
+                // Fine pixel centre in coarse pixel coordinates.
+                let fx = (x as f32 + 0.5) * cw as f32 / w as f32 - 0.5;
+                let x0 = fx.floor() as isize;
+                let dxs: [f32; 4] = std::array::from_fn(|a| (x0 - 1 + a as isize) as f32 - fx);
+                let seen = cached
+                    .iter()
+                    .flatten()
+                    .find(|(d, _)| d.map(f32::to_bits) == dxs.map(f32::to_bits));
+                let spatial = match seen {
+                    Some(&(_, s)) => s,
+                    None => {
+                        let s = std::array::from_fn(|b| {
+                            let dy = (y0 - 1 + b as isize) as f32 - fy;
+                            std::array::from_fn(|a| {
+                                let dx = dxs[a];
+                                gaussian((dx * dx + dy * dy).sqrt() as f64) as f32
+                            })
+                        });
+                        cached = [Some((dxs, s)), cached[0]];
+                        s
+                    }
+                };
+                let g = fine.at(x, y);
+                // The 16 taps' range exponents first (in vector lanes), then the sums in tap order.
+                let mut arg = [0.0f32; 16];
+                let mut tap = [None; 16];
+                for (b, qy) in (y0 - 1..=y0 + 2).enumerate() {
+                    for (a, qx) in (x0 - 1..=x0 + 2).enumerate() {
+                        if qx < 0 || qy < 0 || qx >= cw as isize || qy >= ch as isize {
+                            continue;
+                        }
+                        let (qx, qy) = (qx as usize, qy as usize);
+                        let q = coarse_guide.at(qx, qy);
+                        let d2 =
+                            ((g[0] - q[0]).powi(2) + (g[1] - q[1]).powi(2) + (g[2] - q[2]).powi(2))
+                                / 3.0;
+                        arg[4 * b + a] = -d2 * inv_r;
+                        tap[4 * b + a] = Some((qx, qy));
+                    }
+                }
+                let range = arg.map(exp_neg);
+                let (mut sum, mut plain) = ([0.0f32; 3], [0.0f32; 3]);
+                let (mut wsum, mut psum) = (0.0f32, 0.0f32);
+                for (t, &at) in tap.iter().enumerate() {
+                    let Some((qx, qy)) = at else {
+                        continue;
+                    };
+                    let spatial = spatial[t / 4][t % 4];
+                    let wq = spatial * range[t];
+                    let cq = c.at(qx, qy);
+                    for k in 0..3 {
+                        sum[k] += wq * cq[k];
+                        plain[k] += spatial * cq[k];
+                    }
+                    wsum += wq;
+                    psum += spatial;
+                }
+                // No similar coarse pixel: fall back to the plain spatial weights rather than dropping the correction.
+                let px = &mut row[3 * x..3 * x + 3];
+                for k in 0..3 {
+                    px[k] = if wsum > 1e-4 * psum {
+                        sum[k] / wsum
+                    } else {
+                        plain[k] / psum.max(f32::MIN_POSITIVE)
+                    };
+                }
+            }
+        });
+    out
+}
+
+/// Keeps every sample of `img` within the range of `guide`'s (2r+1)² neighbourhood, per channel: coarse
+/// corrections may move a pixel towards its neighbours' values but never beyond them (no overshoot
+/// or ringing, as the neighbourhood clamp of temporal anti-aliasing). Leaves `img` unchanged where it
+/// already is in range, so an untouched pyramid still reconstructs exactly.
+fn clamp_to_neighbourhood(img: &mut Image, guide: &Image, r: usize) {
+    clamp_in_bands(img, guide, r, CLAMP_BAND_ROWS);
+}
+
+/// Output rows per task of the neighbourhood clamp: each holds its rows' (and the window's reach)
+/// minima and maxima across, not the whole image's.
+const CLAMP_BAND_ROWS: usize = 32;
+
+/// [`clamp_to_neighbourhood`] with `band_rows` output rows per task.
+fn clamp_in_bands(img: &mut Image, guide: &Image, r: usize, band_rows: usize) {
+    let ((w, h), c) = (img.dims(), img.channels());
+    let stride = c * w;
+    if stride == 0 {
+        return;
+    }
+    let band_rows = band_rows.max(1);
+    // Min and max are exact and the window a rectangle: over each row's 2r + 1 columns first
+    // (whole rows at a time, so the loops run in vector lanes), then over the 2r + 1 rows.
+    let across = |rows: std::ops::Range<usize>, pick: fn(f32, f32) -> f32| {
+        let mut out = guide.data()[rows.start * stride..rows.end * stride].to_vec();
+        for (out, row) in out
+            .chunks_mut(stride)
+            .zip(guide.data()[rows.start * stride..].chunks(stride))
+        {
+            for s in (1..=r.min(w - 1)).map(|d| c * d) {
+                for (o, &v) in out[..stride - s].iter_mut().zip(&row[s..]) {
+                    *o = pick(*o, v);
+                }
+                for (o, &v) in out[s..].iter_mut().zip(&row[..stride - s]) {
+                    *o = pick(*o, v);
+                }
+            }
+        }
+        out
+    };
+    img.data_mut()
+        .par_chunks_mut(stride * band_rows)
+        .enumerate()
+        .for_each(|(band, rows)| {
+            let y0 = band * band_rows;
+            let y1 = (y0 + band_rows).min(h);
+            let reach = y0.saturating_sub(r)..(y1 + r).min(h);
+            let (lo_rows, hi_rows) = (
+                across(reach.clone(), f32::min),
+                across(reach.clone(), f32::max),
+            );
+            let span = |yy: usize| (yy - reach.start) * stride..(yy - reach.start + 1) * stride;
+            // One output row's window minima and maxima, rewritten row by row.
+            let (mut lo, mut hi) = (vec![0.0f32; stride], vec![0.0f32; stride]);
+            for (y, row) in (y0..y1).zip(rows.chunks_mut(stride)) {
+                lo.copy_from_slice(&lo_rows[span(y)]);
+                hi.copy_from_slice(&hi_rows[span(y)]);
+                for yy in (y.saturating_sub(r)..=(y + r).min(h - 1)).filter(|&yy| yy != y) {
+                    for ((l, h), (&a, &b)) in lo
+                        .iter_mut()
+                        .zip(hi.iter_mut())
+                        .zip(lo_rows[span(yy)].iter().zip(&hi_rows[span(yy)]))
+                    {
+                        *l = l.min(a);
+                        *h = h.max(b);
+                    }
+                }
+                for ((v, &l), &h) in row.iter_mut().zip(&lo).zip(&hi) {
+                    *v = v.clamp(l, h);
+                }
+            }
+        });
+}
+
+/// Laplacian blending of denoised levels `d[0]` (finest) … `d[L]` (coarsest), in domain T:
+/// T(R_L) = T(D_L); T(R_l) = b_l·(T(D_l) − EXPAND(T(REDUCE(D_l)))) + EXPAND(T(R_{l+1})), clamped at 0.
+///
+/// Written as a correction, T(R_l) = b_l·T(D_l) + (1 − b_l)·EXPAND(T(REDUCE(D_l))) + EXPAND(C) with
+/// C = T(R_{l+1}) − T(REDUCE(D_l)); with `guided`, C is expanded by [`guided_expand`]. REDUCE is the
+/// linear one that built the pyramid, so an untouched pyramid (R_{l+1} = REDUCE(D_l), C = 0) gives back
+/// D_0 in every mode. `band_weights[l]` (default 1) scales the detail band of level l.
+/// The levels are taken, not borrowed: each is brought into the blend domain in its own memory.
+pub fn blend(
+    mut d: Vec<Image>,
+    band_weights: &[f32],
+    domain: BlendDomain,
+    guided: bool,
+    clamp_radius: Option<usize>,
+) -> Result<Image> {
+    let last = d
+        .len()
+        .checked_sub(1)
+        .ok_or_else(|| Error::Runtime("blend of no levels".into()))?;
+    let mut r = d.pop().expect("at least one level");
+    if last == 0 {
+        // One level is its own reconstruction (R_0 = D_0): no round trip through the blend domain.
+        r.data_mut().iter_mut().for_each(|v| *v = v.max(0.0));
+        return Ok(r);
+    }
+    domain.forward(&mut r);
+    for l in (0..last).rev() {
+        let mut fine = d.pop().expect("one image per level");
+        let (w, h) = fine.dims();
+        let mut reduced = reduce(&fine)?;
+        domain.forward(&mut reduced);
+        domain.forward(&mut fine);
+        let mut correction = r;
+        for (v, &lo) in correction.data_mut().iter_mut().zip(reduced.data()) {
+            *v -= lo;
+        }
+        let up = if guided {
+            guided_expand(&correction, &fine, &reduced)
+        } else {
+            expand(&correction, w, h)?
+        };
+        let b = band_weights.get(l).copied().unwrap_or(1.0);
+        // The sum is formed in `up`'s memory, so `fine` stays as the clamp's guide without a copy.
+        let mut next = up;
+        if b != 1.0 {
+            let low = expand(&reduced, w, h)?;
+            for ((v, &f), &lo) in next.data_mut().iter_mut().zip(fine.data()).zip(low.data()) {
+                *v += b * f + (1.0 - b) * lo;
+            }
+        } else {
+            for (v, &f) in next.data_mut().iter_mut().zip(fine.data()) {
+                *v += f;
+            }
+        }
+        if let Some(radius) = clamp_radius {
+            clamp_to_neighbourhood(&mut next, &fine, radius);
+        }
+        r = next;
+    }
+    domain.inverse(&mut r);
+    r.data_mut().iter_mut().for_each(|v| *v = v.max(0.0));
+    Ok(r)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ramp(w: usize, h: usize) -> Image {
+        Image::from_fn(w, h, 3, |x, y, c| {
+            ((x * 13 + y * 7 + c * 5) % 17) as f32 / 4.0 + 0.01
+        })
+    }
+
+    #[test]
+    fn the_neighbourhood_clamp_is_the_windows_min_and_max() {
+        for (w, h) in [(1, 1), (1, 6), (7, 1), (5, 9), (13, 4)] {
+            for r in 1..=3 {
+                let guide =
+                    Image::from_fn(w, h, 3, |x, y, c| ((x * 31 + y * 17 + c * 7) % 11) as f32);
+                let img =
+                    Image::from_fn(w, h, 3, |x, y, c| ((x * 5 + y * 3 + c) % 13) as f32 - 1.0);
+                for band_rows in [1, 2, 3, CLAMP_BAND_ROWS] {
+                    let mut got = img.clone();
+                    clamp_in_bands(&mut got, &guide, r, band_rows);
+                    for y in 0..h {
+                        for x in 0..w {
+                            for c in 0..3 {
+                                let cells =
+                                    (y.saturating_sub(r)..=(y + r).min(h - 1)).flat_map(|yy| {
+                                        (x.saturating_sub(r)..=(x + r).min(w - 1))
+                                            .map(move |xx| (xx, yy))
+                                    });
+                                let values: Vec<f32> =
+                                    cells.map(|(xx, yy)| guide.at(xx, yy)[c]).collect();
+                                let lo = values.iter().copied().fold(f32::INFINITY, f32::min);
+                                let hi = values.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+                                let want = img.at(x, y)[c].clamp(lo, hi);
+                                assert_eq!(
+                                    got.at(x, y)[c],
+                                    want,
+                                    "{w}x{h} r {r}, {band_rows} rows a band, at ({x}, {y}, {c})"
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn reduce_keeps_the_mean() {
+        let img = ramp(40, 30);
+        let small = reduce(&img).unwrap();
+        assert_eq!(small.dims(), (20, 15));
+        for (a, b) in img.channel_means().iter().zip(small.channel_means()) {
+            assert!((a - b).abs() < 0.02 * a, "{a} vs {b}");
+        }
+    }
+
+    #[test]
+    fn untouched_pyramid_reconstructs_its_input() {
+        for (w, h, levels) in [(37, 23, 4), (1, 1, 3), (64, 64, 5), (5, 9, 3)] {
+            let img = ramp(w, h);
+            let n = allowed_levels(w, h, levels);
+            let mut levels_imgs = vec![img.clone()];
+            for _ in 1..n {
+                let next = reduce(levels_imgs.last().unwrap()).unwrap();
+                levels_imgs.push(next);
+            }
+            for (domain, guided) in [
+                (BlendDomain::Linear, false),
+                (BlendDomain::Log, false),
+                (BlendDomain::Log, true),
+            ] {
+                let out = blend(levels_imgs.clone(), &[], domain, guided, Some(1)).unwrap();
+                let max_rel = out
+                    .data()
+                    .iter()
+                    .zip(img.data())
+                    .map(|(a, b)| ((a - b) / b.abs().max(1e-6)).abs())
+                    .fold(0.0f32, f32::max);
+                assert!(
+                    max_rel < 1e-5,
+                    "{w}x{h} {domain:?} guided {guided}: {max_rel}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn depth_reduce_picks_the_nearest_surface() {
+        let d = Image::from_vec(3, 1, 1, vec![5.0, 1.0, 9.0]).unwrap();
+        assert_eq!(reduce_min(&d).data(), &[1.0, 9.0]);
+    }
+
+    #[test]
+    fn masked_reduce_ignores_fireflies() {
+        let mut color = Image::filled(8, 8, 3, 0.5);
+        color.pixel_mut(27).copy_from_slice(&[1e6; 3]);
+        let mut mask = Image::new(8, 8, 1);
+        mask.pixel_mut(27)[0] = 1.0;
+        let (small, coarse_mask) = reduce_masked(&color, &mask).unwrap();
+        assert!(small.data().iter().all(|&v| (v - 0.5).abs() < 1e-5));
+        assert!(coarse_mask.data().iter().all(|&v| v == 0.0));
+    }
+
+    #[test]
+    fn level_count_is_clipped_for_small_images() {
+        assert_eq!(allowed_levels(1, 1, 4), 1);
+        assert_eq!(allowed_levels(37, 23, 4), 3);
+        assert_eq!(allowed_levels(128, 128, 4), 4);
+    }
+}
