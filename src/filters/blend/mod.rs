@@ -14,10 +14,10 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{parse_params, Context, Stage, StageIo};
 use crate::buffers::{Buffers, COLOR};
 use crate::error::{Error, Result};
 use crate::filters::noise::kernel as noise;
+use crate::filters::stage::{parse_params, Context, Stage, StageIo};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -92,7 +92,7 @@ impl Stage for BlendStage {
     }
 
     fn execute_impl(&self, buffers: &mut Buffers, _ctx: &mut Context) -> Result<u64> {
-        let (filtered, original, variance) = super::filtered_original_noise(
+        let (filtered, original, variance) = crate::filters::stage::filtered_original_noise(
             buffers,
             &self.io.input,
             &self.params.original,
@@ -116,28 +116,5 @@ impl Stage for BlendStage {
         }
         buffers.insert(self.io.output.clone(), out)?;
         Ok(0)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use crate::pipeline::PipelineSpec;
-
-    #[test]
-    fn out_of_range_factors_are_named() {
-        for (key, value) in [
-            ("leak", "-1"),
-            ("leak", "0"),
-            ("tolerance", "nan"),
-            ("leak", "1e9"),
-        ] {
-            let mut spec = PipelineSpec::builtin("full").unwrap();
-            spec.apply_set(&format!("blend.{key}={value}")).unwrap();
-            let err = spec.build().err().expect("rejected").to_string();
-            assert!(
-                err.contains(&format!("blend.{key}")) && err.contains("above 0"),
-                "{err}"
-            );
-        }
     }
 }

@@ -4,10 +4,10 @@ pub mod walk;
 
 use serde::{Deserialize, Serialize};
 
-use super::{parse_params, read_mask, Context, Stage, StageIo};
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::features::{Features, Recipe, Tone, Weights};
+use crate::filters::stage::{parse_params, read_mask, Context, Stage, StageIo};
 use crate::progress::Progress;
 use walk::{FeatureSource, WalkJob, WalkParams};
 
@@ -122,8 +122,8 @@ impl GsidParams {
     }
 
     /// How `sigma` follows the noise.
-    pub fn scaling(&self) -> super::NoiseScaling {
-        super::NoiseScaling {
+    pub fn scaling(&self) -> crate::filters::noise::scaling::NoiseScaling {
+        crate::filters::noise::scaling::NoiseScaling {
             noise: self.noise.clone(),
             noise_ref: self.noise_ref,
             noise_power: self.noise_power,

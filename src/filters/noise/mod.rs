@@ -15,12 +15,13 @@
 //! requires the renderer's buffers.
 
 pub mod kernel;
+pub mod scaling;
 
 use serde::{Deserialize, Serialize};
 
-use super::{parse_params, Context, Stage, StageIo};
 use crate::buffers::{Buffers, COLOR};
 use crate::error::{Error, Result};
+use crate::filters::stage::{parse_params, Context, Stage, StageIo};
 use crate::image::Image;
 use crate::render_set::NoiseInputs;
 

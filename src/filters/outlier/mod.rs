@@ -4,9 +4,9 @@ pub mod kernel;
 
 use serde::{Deserialize, Serialize};
 
-use super::{parse_params, Context, Stage, StageIo};
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
+use crate::filters::stage::{parse_params, Context, Stage, StageIo};
 use crate::render_set::Feature;
 use kernel::{Action, DetectParams, Guides, Rule};
 

@@ -21,9 +21,9 @@ pub mod kernel;
 
 use serde::{Deserialize, Serialize};
 
-use super::{parse_params, Context, Stage, StageIo};
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
+use crate::filters::stage::{parse_params, Context, Stage, StageBuilder, StageIo};
 use crate::spec::StageSpec;
 use kernel::BlendDomain;
 
@@ -102,8 +102,9 @@ pub struct PyramidStage {
 
 impl PyramidStage {
     /// Builds the sub-stages of every level: each child with its every-level overrides, then those
-    /// of its level, merged into its parameters.
-    pub fn from_spec(spec: &StageSpec) -> Result<Self> {
+    /// of its level, merged into its parameters; `build` makes each sub-stage (the registry's
+    /// `filters::build`, handed in so this room does not reach back to it).
+    pub fn from_spec(spec: &StageSpec, build: StageBuilder) -> Result<Self> {
         let id = spec.id.as_str();
         let params: PyramidParams = parse_params(id, spec.params.clone())?;
         params.validate().map_err(|e| e.in_context(id))?;
@@ -146,7 +147,7 @@ impl PyramidStage {
                         sub.merge(t).map_err(|e| e.in_context(&context))?;
                     }
                 }
-                built.push(super::build(&sub).map_err(|e| e.in_context(&context))?);
+                built.push(build(&sub).map_err(|e| e.in_context(&context))?);
             }
             levels.push(built);
         }

@@ -20,9 +20,9 @@ pub mod kernel;
 
 use serde::{Deserialize, Serialize};
 
-use super::{parse_params, Context, Stage, StageIo};
 use crate::buffers::{Buffers, COLOR};
 use crate::error::{Error, Result};
+use crate::filters::stage::{parse_params, Context, Stage, StageIo};
 use crate::render_set::Feature;
 use kernel::{Inputs, Params, MAX_RADIUS};
 
@@ -142,7 +142,7 @@ impl Stage for RegressStage {
     }
 
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
-        let (filtered, noisy, variance) = super::filtered_original_noise(
+        let (filtered, noisy, variance) = crate::filters::stage::filtered_original_noise(
             buffers,
             &self.io.input,
             &self.params.original,

@@ -1,0 +1,147 @@
+//! What every stage is: the [`Stage`] trait (its checks run once, in `execute`, before the work),
+//! the [`Context`] a run carries through its stages, and the helpers stage constructors share.
+//!
+//! A stage reads named buffers and writes named buffers (see `buffers`). The common keys of every
+//! stage table are `kind`, `id`, `input` and `output`; everything else is the kind's parameters,
+//! parsed with `deny_unknown_fields` so a misspelled key is an error that names it.
+
+use std::time::Instant;
+
+use crate::buffers::Buffers;
+use crate::error::{Error, Result};
+use crate::image::Image;
+pub use crate::spec::StageIo;
+
+/// What every stage run can use and report into.
+pub struct Context {
+    pub seed: u64,
+    /// Pyramid level (0 = full size), so levels draw independent random numbers.
+    pub level: u32,
+    /// Show progress bars.
+    pub progress: bool,
+    /// One-line notices for the user, in order.
+    pub notes: Vec<String>,
+    /// Per-stage timings and work, in order of execution.
+    pub reports: Vec<StageReport>,
+}
+
+impl Context {
+    pub fn new(seed: u64, progress: bool) -> Self {
+        Context {
+            seed,
+            level: 0,
+            progress,
+            notes: Vec::new(),
+            reports: Vec::new(),
+        }
+    }
+
+    /// Adds a notice once (the same line is not repeated, e.g. from every pyramid level).
+    pub fn note(&mut self, line: String) {
+        if !self.notes.contains(&line) {
+            self.notes.push(line);
+        }
+    }
+}
+
+/// Timing and work of one stage run.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct StageReport {
+    pub id: String,
+    pub level: u32,
+    pub seconds: f64,
+    pub walk_steps: u64,
+}
+
+/// Builds a stage from its spec: what a composite stage is handed to build its sub-stages.
+pub type StageBuilder = fn(&crate::spec::StageSpec) -> Result<Box<dyn Stage>>;
+
+/// A configured stage, ready to run.
+pub trait Stage: Send + Sync {
+    /// The stage's id in its pipeline (its kind unless the file gives an `id`).
+    fn id(&self) -> &str;
+    /// Buffers that must exist before it runs.
+    fn requires(&self) -> Vec<String>;
+    /// Buffers it creates or replaces.
+    fn writes(&self) -> Vec<String>;
+    /// The work itself; `execute` has checked `requires`.
+    fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64>;
+
+    /// Checks preconditions, runs, and records the timing.
+    fn execute(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<()> {
+        for name in self.requires() {
+            buffers.require(&name).map_err(|_| {
+                Error::buffer(
+                    &name,
+                    format!(
+                        "is required by stage `{}` but no earlier stage or input provides it",
+                        self.id()
+                    ),
+                )
+            })?;
+        }
+        let start = Instant::now();
+        let walk_steps = self.execute_impl(buffers, ctx)?;
+        ctx.reports.push(StageReport {
+            id: self.id().to_string(),
+            level: ctx.level,
+            seconds: start.elapsed().as_secs_f64(),
+            walk_steps,
+        });
+        Ok(())
+    }
+}
+
+/// The pixels a stage must avoid: buffer `name` read as one channel, > 0.5 = masked, checked to
+/// be `dims` in size. A named buffer that does not exist masks nothing, with a note under `label`.
+pub fn read_mask(
+    buffers: &Buffers,
+    name: Option<&str>,
+    dims: (usize, usize),
+    ctx: &mut Context,
+    label: &str,
+) -> Result<Option<Vec<bool>>> {
+    let Some(name) = name else {
+        return Ok(None);
+    };
+    match buffers.get_sized(name, 1, dims)? {
+        Some(m) => Ok(Some(m.data().iter().map(|&v| v > 0.5).collect())),
+        None => {
+            ctx.note(format!(
+                "{label}: mask buffer `{name}` not present; no pixels masked"
+            ));
+            Ok(None)
+        }
+    }
+}
+
+/// A filtered image (`input`), the colour it was filtered from (`original`) and that colour's
+/// variance (`noise`): three channels each, all the filtered image's size. What the stages that
+/// weigh a filter's change against the noise read (`blend`, `regress`).
+pub fn filtered_original_noise<'a>(
+    buffers: &'a Buffers,
+    input: &str,
+    original: &str,
+    noise: &str,
+) -> Result<(&'a Image, &'a Image, &'a Image)> {
+    let three = |name: &str| buffers.require_channels(name, 3);
+    let (filtered, original_img, variance) = (three(input)?, three(original)?, three(noise)?);
+    for (name, img) in [(original, original_img), (noise, variance)] {
+        if img.dims() != filtered.dims() {
+            return Err(Error::buffer(
+                name,
+                "does not match the filtered image's size",
+            ));
+        }
+    }
+    Ok((filtered, original_img, variance))
+}
+
+/// Deserialises a parameter table into `T`, naming the stage in errors.
+pub fn parse_params<T: serde::de::DeserializeOwned>(id: &str, params: toml::Table) -> Result<T> {
+    T::deserialize(toml::Value::Table(params)).map_err(|e| {
+        let msg = e.to_string();
+        let msg = msg.trim().replace('\n', " ");
+        Error::config(id.to_string(), msg)
+    })
+}
