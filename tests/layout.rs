@@ -139,11 +139,10 @@ fn is_raw_start(b: &[char], i: usize) -> bool {
 
 /// A character literal (`'x'`, `'\n'`, `'\u{..}'`) at `i`, not a lifetime (`'a`).
 fn is_char_literal(b: &[char], i: usize) -> bool {
-    match (b.get(i + 1), b.get(i + 2)) {
-        (Some('\\'), _) => true,
-        (Some(_), Some('\'')) => true,
-        _ => false,
-    }
+    matches!(
+        (b.get(i + 1), b.get(i + 2)),
+        (Some('\\'), _) | (Some(_), Some('\''))
+    )
 }
 
 /// Expands a `use` tree (`a::{b, c::{d, e}}`) into its paths.

@@ -8,12 +8,11 @@
 
 use std::path::{Path, PathBuf};
 
-use serde::Serialize;
-
-use crate::cli::{self, DenoiseArgs};
-use crate::condition::SanitizeReport;
+use super::args::DenoiseArgs;
+use super::frame::denoise_or_skip;
+use super::report::{Entry, Outcome, PipelineJson, SequenceJson};
+use super::stdout::print_json;
 use crate::error::{Error, Result};
-use crate::filters::StageReport;
 use crate::io;
 use crate::pipeline::Pipeline;
 use crate::progress::Progress;
@@ -420,7 +419,7 @@ impl Batch {
                 skipped,
                 failed: failed.iter().map(|(l, _)| l.clone()).collect(),
             };
-            cli::print_json(&json)?;
+            print_json(&json)?;
         }
         if let Some(e) = stop {
             return Err(e);
@@ -438,27 +437,6 @@ impl Batch {
             total,
         })
     }
-}
-
-/// Denoises the render set `args` names, or skips it when `--skip-existing` finds its output (the
-/// `-o` file, written last) already there. `say` gets each line for the user as soon as it is known.
-pub fn denoise_or_skip(
-    args: &DenoiseArgs,
-    pipeline: &Pipeline,
-    ctx: &RunContext,
-    stage_progress: bool,
-    say: &dyn Fn(&str),
-) -> Result<Outcome> {
-    let output = &args.output;
-    if args.skip_existing && output.as_os_str() != io::STDOUT && output.is_file() {
-        say(&format!("skipped, {} exists", output.display()));
-        return Ok(Outcome::Skipped {
-            output: output.display().to_string(),
-        });
-    }
-    let report = cli::denoise_frame(args, pipeline, ctx, stage_progress, say)?;
-    cli::tell(&report, args.timings, say);
-    Ok(Outcome::Done(Box::new(report)))
 }
 
 /// A folder without a `color` file whose subfolders are render sets.
@@ -481,120 +459,6 @@ fn render_set_folders(dir: &Path) -> Result<Vec<String>> {
         (stem.to_string(), number, name.clone())
     });
     Ok(names)
-}
-
-/// What one `gsid denoise` frame did (`--json`; the human lines are made from it too).
-#[derive(Clone, Debug, Serialize)]
-pub struct FrameReport {
-    /// The render set folder or file the frame was read from.
-    pub input: String,
-    pub inputs: Vec<InputJson>,
-    pub width: usize,
-    pub height: usize,
-    /// What reading said: the channel mapping, missing buffers, LDR colour.
-    pub input_notes: Vec<String>,
-    /// What the pipeline said (brightness scaling, sanitised input, fallbacks).
-    pub notes: Vec<String>,
-    pub stages: Vec<StageReport>,
-    pub walk_steps: u64,
-    pub sanitized: SanitizeReport,
-    pub seconds: Seconds,
-    pub output: String,
-    /// Buffers saved with `--save-buffer`.
-    pub saved: Vec<SavedJson>,
-}
-
-/// One input buffer: the file it was read from and which channels (or layer) became it.
-#[derive(Clone, Debug, Serialize)]
-pub struct InputJson {
-    pub buffer: String,
-    pub file: String,
-    pub source: String,
-}
-
-impl InputJson {
-    /// The buffers of a loaded set, each with its source.
-    pub fn list(set: &io::LoadedSet) -> Vec<InputJson> {
-        set.files
-            .iter()
-            .map(|(buffer, file)| InputJson {
-                buffer: buffer.clone(),
-                file: file.display().to_string(),
-                source: set
-                    .sources
-                    .iter()
-                    .find(|(b, _)| b == buffer)
-                    .map_or_else(|| file.display().to_string(), |(_, s)| s.clone()),
-            })
-            .collect()
-    }
-}
-
-#[derive(Clone, Debug, Serialize)]
-pub struct SavedJson {
-    pub buffer: String,
-    pub file: String,
-}
-
-/// Wall time of a frame's parts, in seconds.
-#[derive(Clone, Debug, Serialize)]
-pub struct Seconds {
-    pub read: f64,
-    pub pipeline: f64,
-    pub write: f64,
-    pub total: f64,
-}
-
-/// The pipeline a run used: its name and its stages' ids, in order.
-#[derive(Clone, Debug, Serialize)]
-pub struct PipelineJson {
-    pub name: String,
-    pub stages: Vec<String>,
-}
-
-impl PipelineJson {
-    pub fn of(pipeline: &Pipeline) -> Self {
-        PipelineJson {
-            name: pipeline.name.clone(),
-            stages: pipeline.stages.iter().map(|s| s.id().to_string()).collect(),
-        }
-    }
-}
-
-/// `gsid denoise --json` of one render set.
-#[derive(Serialize)]
-pub struct SingleJson {
-    pub pipeline: PipelineJson,
-    pub seed: u64,
-    #[serde(flatten)]
-    pub outcome: Outcome,
-}
-
-/// `gsid denoise --json` of a sequence or a folder of render sets.
-#[derive(Serialize)]
-struct SequenceJson {
-    pipeline: PipelineJson,
-    seed: u64,
-    frames: Vec<Entry>,
-    done: usize,
-    skipped: usize,
-    failed: Vec<String>,
-}
-
-#[derive(Serialize)]
-struct Entry {
-    frame: String,
-    #[serde(flatten)]
-    outcome: Outcome,
-}
-
-/// What became of one frame.
-#[derive(Serialize)]
-#[serde(tag = "status", rename_all = "lowercase")]
-pub enum Outcome {
-    Done(Box<FrameReport>),
-    Skipped { output: String },
-    Failed { error: String, exit_code: i32 },
 }
 
 #[cfg(test)]
