@@ -37,6 +37,9 @@ pub enum Error {
     /// Any other bad usage (e.g. mismatched image sizes given to `eval`).
     #[error("{0}")]
     Usage(String),
+    /// The run was stopped through its [`crate::CancelToken`]; no image was produced.
+    #[error("cancelled")]
+    Cancelled,
     /// Something failed that is not the user's input (I/O error mid-run, ...).
     #[error("{0}")]
     Runtime(String),
@@ -89,7 +92,7 @@ impl Error {
     pub fn exit_code(&self) -> i32 {
         match self {
             Error::StdoutClosed => 0,
-            Error::Runtime(_) | Error::Write { .. } => 1,
+            Error::Runtime(_) | Error::Write { .. } | Error::Cancelled => 1,
             Error::Frame { source, .. } => source.exit_code(),
             Error::Frames { code, .. } => *code,
             _ => 2,

@@ -10,7 +10,7 @@
 //! crate with `default-features = false` to leave out the command line's dependencies (`cli`).
 //!
 //! ```
-//! use gsid::{Buffers, Feature, Image, PipelineSpec, RenderSet};
+//! use gsid::{Buffers, DenoiseOptions, Feature, Image, PipelineSpec, RenderSet};
 //!
 //! # fn main() -> gsid::Result<()> {
 //! let (w, h) = (32, 24);
@@ -27,8 +27,10 @@
 //!
 //! // A pipeline compiled into the crate (`gsid pipelines` lists them); no file is read.
 //! let pipeline = PipelineSpec::builtin("full")?.build()?;
-//! // The same set, pipeline and seed give the same bits on any number of threads.
-//! let (denoised, report) = pipeline.run(&mut Buffers::from(set), 0, false)?;
+//! // The same set, pipeline and seed give the same bits on any number of threads. The options
+//! // also take a thread count, a progress callback and a cancel token.
+//! let options = DenoiseOptions::seeded(0);
+//! let (denoised, report) = pipeline.run(&mut Buffers::from(set), &options)?;
 //!
 //! assert_eq!(denoised.dims(), (w, h));
 //! assert!(denoised.data().iter().all(|v| v.is_finite()));
@@ -48,6 +50,7 @@ pub mod image;
 pub mod io;
 pub mod kernels;
 pub mod metrics;
+pub mod options;
 pub mod pipeline;
 pub mod progress;
 #[cfg(feature = "cli")]
@@ -61,5 +64,6 @@ pub mod study;
 pub use crate::buffers::Buffers;
 pub use crate::error::{Error, Result};
 pub use crate::image::Image;
+pub use crate::options::{CancelToken, DenoiseOptions, ProgressFn};
 pub use crate::pipeline::{Pipeline, PipelineSpec, RunReport};
 pub use crate::render_set::{Feature, FeatureSet, RenderSet};

@@ -10,6 +10,7 @@ use crate::condition::{Conditioning, SanitizeReport};
 use crate::error::{Error, Result};
 use crate::filters::{self, Context, Stage, StageReport};
 use crate::image::Image;
+use crate::options::DenoiseOptions;
 pub use crate::spec::{PipelineSpec, StageSpec, BUILTIN, OUTPUT_BUFFER};
 
 /// The pipeline `gsid denoise` runs without `--pipeline`.
@@ -62,21 +63,32 @@ impl Pipeline {
 
     /// Conditions the inputs (sanitising, brightness: [`Conditioning`]), runs every stage, and
     /// takes the `out` buffer out of `buffers` (back at the input's scale, as is `color`) with a
-    /// report.
+    /// report. `options` gives the seed, the threads, progress and cancellation.
     pub fn run(
         &self,
         buffers: &mut Buffers,
-        seed: u64,
-        progress: bool,
+        options: &DenoiseOptions,
+    ) -> Result<(Image, RunReport)> {
+        options.install(|| self.run_here(buffers, options))?
+    }
+
+    /// [`Pipeline::run`] on the current thread pool.
+    fn run_here(
+        &self,
+        buffers: &mut Buffers,
+        options: &DenoiseOptions,
     ) -> Result<(Image, RunReport)> {
         let start = Instant::now();
         let conditioning = Conditioning::apply(buffers);
-        let mut ctx = Context::new(seed, progress);
+        let mut ctx = Context::new(options.seed, options.progress_bar);
+        ctx.cancel = options.cancel.clone();
         for line in conditioning.notes() {
             ctx.note(line);
         }
         self.check_buffers(buffers)?;
-        for stage in &self.stages {
+        let count = self.stages.len().max(1) as f32;
+        for (done, stage) in self.stages.iter().enumerate() {
+            options.report(done as f32 / count, stage.id());
             stage.execute(buffers, &mut ctx)?;
         }
         if let Some(color) = buffers.get_mut(COLOR) {
@@ -89,6 +101,7 @@ impl Pipeline {
             )
         })?;
         conditioning.undo(&mut out);
+        options.report(1.0, "done");
         let report = RunReport {
             pipeline: self.name.clone(),
             sanitized: conditioning.sanitized,

@@ -2,10 +2,9 @@
 //! seed. `denoise`, `sweep`, `ablate` and `render` all make it the same way, so `--threads` means and
 //! checks the same everywhere.
 
-use crate::error::{Error, Result};
-
-/// Most worker threads accepted: far beyond any machine gsid runs on, so a larger count is a typo.
-pub const MAX_THREADS: usize = 1024;
+use crate::error::Result;
+pub use crate::options::MAX_THREADS;
+use crate::options::{thread_pool, DenoiseOptions};
 
 /// A thread pool (rayon's global one unless a count was asked for), progress on or off, and a seed.
 pub struct RunContext {
@@ -19,18 +18,7 @@ pub struct RunContext {
 impl RunContext {
     /// Checks `threads` (1 to [`MAX_THREADS`]; `None`: all cores) and starts the pool.
     pub fn new(threads: Option<usize>, progress: bool, seed: u64) -> Result<Self> {
-        let pool = match threads {
-            None => None,
-            Some(n) if !(1..=MAX_THREADS).contains(&n) => {
-                return Err(Error::range("--threads", n, &format!("1 to {MAX_THREADS}")))
-            }
-            Some(n) => Some(
-                rayon::ThreadPoolBuilder::new()
-                    .num_threads(n)
-                    .build()
-                    .map_err(|e| Error::Runtime(format!("cannot start {n} threads: {e}")))?,
-            ),
-        };
+        let pool = threads.map(thread_pool).transpose()?;
         Ok(RunContext {
             pool,
             progress,
@@ -43,6 +31,15 @@ impl RunContext {
         match &self.pool {
             Some(pool) => pool.install(f),
             None => f(),
+        }
+    }
+
+    /// The options of one pipeline run inside this context's pool, with or without progress bars.
+    pub fn denoise_options(&self, progress_bar: bool) -> DenoiseOptions {
+        DenoiseOptions {
+            seed: self.seed,
+            progress_bar,
+            ..DenoiseOptions::default()
         }
     }
 

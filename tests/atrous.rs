@@ -7,7 +7,7 @@ use common::{assert_set_refused, default_features, synthetic_set};
 use gsid::features::{FeaturePlanes, Features, Recipe, Tone, Weights};
 use gsid::filters::atrous::kernel::pass_with;
 use gsid::kernels::simd::Kernel;
-use gsid::{Buffers, Image};
+use gsid::{Buffers, DenoiseOptions, Image};
 
 fn bits(img: &Image) -> Vec<u32> {
     img.data().iter().map(|v| v.to_bits()).collect()
@@ -277,7 +277,7 @@ fn demodulation_keeps_texture_out_of_the_average() {
             .unwrap()
             .build()
             .unwrap()
-            .run(&mut b, 0, false)
+            .run(&mut b, &DenoiseOptions::seeded(0))
             .unwrap();
         gsid::metrics::score(&out, &reference).unwrap().relmse
     };

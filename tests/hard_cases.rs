@@ -4,14 +4,18 @@ mod common;
 
 use common::synthetic_set;
 use gsid::pipeline::PipelineSpec;
-use gsid::{Buffers, Image};
+use gsid::{Buffers, DenoiseOptions, Image};
 
 fn run(pipeline: &str, sets: &[&str], buffers: &mut Buffers) -> Image {
     let mut spec = PipelineSpec::resolve(pipeline).unwrap();
     for s in sets {
         spec.apply_set(s).unwrap();
     }
-    let (out, _) = spec.build().unwrap().run(buffers, 5, false).unwrap();
+    let (out, _) = spec
+        .build()
+        .unwrap()
+        .run(buffers, &DenoiseOptions::seeded(5))
+        .unwrap();
     out
 }
 
@@ -157,7 +161,7 @@ fn full_pipeline_is_identical_on_one_and_two_threads() {
             .num_threads(threads)
             .build()
             .unwrap();
-        let out = pool.install(|| pipeline.run(&mut b, 9, false).unwrap().0);
+        let out = pool.install(|| pipeline.run(&mut b, &DenoiseOptions::seeded(9)).unwrap().0);
         out.data().iter().map(|v| v.to_bits()).collect::<Vec<_>>()
     };
     assert_eq!(run_on(1), run_on(2));

@@ -11,7 +11,7 @@ use std::path::Path;
 
 use gsid::filters::noise::kernel as noise;
 use gsid::render_set::Feature;
-use gsid::{io, Buffers, Image, PipelineSpec, RenderSet};
+use gsid::{io, Buffers, DenoiseOptions, Image, PipelineSpec, RenderSet};
 
 const FIXTURES: [&str; 4] = ["cornell", "caustics", "textured", "detail"];
 
@@ -133,7 +133,12 @@ fn run(pipeline: &str, buffers: &Buffers, threads: usize) -> Image {
         .build()
         .unwrap();
     let pipeline = PipelineSpec::resolve(pipeline).unwrap().build().unwrap();
-    pool.install(|| pipeline.run(&mut buffers.clone(), 7, false).unwrap().0)
+    pool.install(|| {
+        pipeline
+            .run(&mut buffers.clone(), &DenoiseOptions::seeded(7))
+            .unwrap()
+            .0
+    })
 }
 
 #[test]
@@ -187,7 +192,10 @@ fn stage<'a>(stages: &'a mut [gsid::spec::StageSpec], id: &str) -> &'a mut gsid:
 fn noise_power_zero_is_a_fixed_sigma() {
     let run = |spec: &PipelineSpec, buffers: &Buffers| {
         let pipeline = spec.build().unwrap();
-        pipeline.run(&mut buffers.clone(), 7, false).unwrap().0
+        pipeline
+            .run(&mut buffers.clone(), &DenoiseOptions::seeded(7))
+            .unwrap()
+            .0
     };
     for (fixture, spp, gsid_sigma, atrous_sigma) in
         [("textured", 1, 2.0, 0.4), ("detail", 64, 0.3, 0.1)]

@@ -8,7 +8,7 @@ use common::{synthetic_set, FIXTURE};
 use gsid::filters::outlier::kernel::{self as outlier, luminance, Action, Detection, Guides, Rule};
 use gsid::filters::outlier::OutlierParams;
 use gsid::pipeline::PipelineSpec;
-use gsid::{io, Buffers, Image};
+use gsid::{io, Buffers, DenoiseOptions, Image};
 use rand::rngs::Xoshiro256PlusPlus;
 use rand::{Rng, SeedableRng};
 
@@ -188,7 +188,11 @@ fn outlier_then_gsid_runs_as_a_pipeline_and_writes_the_mask() {
             .unwrap()
             .pixel_mut(5 * 20 + 6)
             .copy_from_slice(&[1e6; 3]);
-        let (out, report) = spec.build().unwrap().run(&mut b, 1, false).unwrap();
+        let (out, report) = spec
+            .build()
+            .unwrap()
+            .run(&mut b, &DenoiseOptions::seeded(1))
+            .unwrap();
         assert!(out.all_finite());
         let mask = b.get("outlier_mask").expect("mask buffer written");
         assert_eq!(mask.channels(), 1);
@@ -213,7 +217,11 @@ fn outlier_then_gsid_runs_as_a_pipeline_and_writes_the_mask() {
 fn builtin_gsid_outlier_pipeline_runs() {
     let mut b = synthetic_set(12, 10);
     let spec = PipelineSpec::resolve("gsid-outlier").unwrap();
-    let (out, _) = spec.build().unwrap().run(&mut b, 0, false).unwrap();
+    let (out, _) = spec
+        .build()
+        .unwrap()
+        .run(&mut b, &DenoiseOptions::seeded(0))
+        .unwrap();
     assert!(out.all_finite());
     assert!(b.contains("outlier_mask"));
 }

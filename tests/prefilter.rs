@@ -5,7 +5,7 @@
 use gsid::filters::prefilter::kernel::{self as prefilter, Kind, Params};
 use gsid::filters::prefilter::{Estimate, PrefilterParams};
 use gsid::render_set::Feature;
-use gsid::{Buffers, Image, PipelineSpec, RenderSet};
+use gsid::{Buffers, DenoiseOptions, Image, PipelineSpec, RenderSet};
 
 /// The `prefilter` stage's defaults.
 fn params() -> Params {
@@ -275,7 +275,12 @@ fn run_full(buffers: &Buffers, threads: usize) -> Image {
     )
     .unwrap();
     let pipeline = spec.build().unwrap();
-    pool.install(|| pipeline.run(&mut buffers.clone(), 0, false).unwrap().0)
+    pool.install(|| {
+        pipeline
+            .run(&mut buffers.clone(), &DenoiseOptions::seeded(0))
+            .unwrap()
+            .0
+    })
 }
 
 #[test]

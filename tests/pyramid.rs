@@ -4,6 +4,7 @@ mod common;
 
 use common::synthetic_set;
 use gsid::pipeline::PipelineSpec;
+use gsid::DenoiseOptions;
 use gsid::Image;
 
 fn untouched(levels: u32, domain: &str, guided: bool) -> PipelineSpec {
@@ -30,7 +31,7 @@ fn untouched_pyramid_reconstructs_its_input_at_odd_sizes_and_1x1() {
             let (out, report) = untouched(4, domain, guided)
                 .build()
                 .unwrap()
-                .run(&mut b, 0, false)
+                .run(&mut b, &DenoiseOptions::seeded(0))
                 .unwrap();
             assert!(
                 max_rel(&out, &input) < 1e-5,

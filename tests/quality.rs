@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use gsid::pipeline::PipelineSpec;
-use gsid::{io, metrics};
+use gsid::{io, metrics, DenoiseOptions};
 
 fn ssim_of(pipeline: Option<&str>, spp: u32) -> f64 {
     let dir = format!("fixtures/mitsuba-cornell/spp{spp}");
@@ -17,7 +17,7 @@ fn ssim_of(pipeline: Option<&str>, spp: u32) -> f64 {
                 .unwrap()
                 .build()
                 .unwrap()
-                .run(&mut set.set.into(), 0, false)
+                .run(&mut set.set.into(), &DenoiseOptions::seeded(0))
                 .unwrap()
                 .0
         }
@@ -61,7 +61,7 @@ fn scores_of(pipeline: &str, fixture: &str, spp: u32) -> metrics::Scores {
         .unwrap()
         .build()
         .unwrap()
-        .run(&mut set.set.into(), 0, false)
+        .run(&mut set.set.into(), &DenoiseOptions::seeded(0))
         .unwrap()
         .0;
     metrics::score(&out, &reference).unwrap()

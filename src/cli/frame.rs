@@ -136,7 +136,7 @@ fn denoise_frame(
     let (width, height) = set.set.dims();
     let input = args.dir.as_ref().unwrap_or(&set.dir).display().to_string();
     let mut buffers = Buffers::from(set.set);
-    let (out, report) = pipeline.run(&mut buffers, ctx.seed, stage_progress)?;
+    let (out, report) = pipeline.run(&mut buffers, &ctx.denoise_options(stage_progress))?;
     let write_start = Instant::now();
     let mut saved = Vec::new();
     for (name, pending) in pending_saves {

@@ -10,6 +10,7 @@ use std::time::Instant;
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::image::Image;
+use crate::options::CancelToken;
 pub use crate::spec::StageIo;
 
 /// What every stage run can use and report into.
@@ -23,6 +24,8 @@ pub struct Context {
     pub notes: Vec<String>,
     /// Per-stage timings and work, in order of execution.
     pub reports: Vec<StageReport>,
+    /// Checked before every stage runs.
+    pub cancel: Option<CancelToken>,
 }
 
 impl Context {
@@ -33,6 +36,7 @@ impl Context {
             progress,
             notes: Vec::new(),
             reports: Vec::new(),
+            cancel: None,
         }
     }
 
@@ -67,8 +71,11 @@ pub trait Stage: Send + Sync {
     /// The work itself; `execute` has checked `requires`.
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64>;
 
-    /// Checks preconditions, runs, and records the timing.
+    /// Checks preconditions and cancellation, runs, and records the timing.
     fn execute(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<()> {
+        if ctx.cancel.as_ref().is_some_and(CancelToken::is_cancelled) {
+            return Err(Error::Cancelled);
+        }
         for name in self.requires() {
             buffers.require(&name).map_err(|_| {
                 Error::buffer(

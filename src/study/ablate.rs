@@ -14,6 +14,7 @@ use crate::error::Result;
 use crate::features::Weights;
 use crate::image::Image;
 use crate::metrics;
+use crate::options::DenoiseOptions;
 use crate::spec::{PipelineSpec, StageSpec};
 
 /// One row of the ablation table.
@@ -188,7 +189,7 @@ pub fn run(
         let pipeline = v.spec.build()?;
         let mut b = buffers.clone();
         let start = Instant::now();
-        let (out, _) = pipeline.run(&mut b, seed, false)?;
+        let (out, _) = pipeline.run(&mut b, &DenoiseOptions::seeded(seed))?;
         let seconds = start.elapsed().as_secs_f64();
         let s = metrics::score(&out, reference)?;
         let base = rows.first().map_or(s.ssim, |r| r.ssim);

@@ -10,6 +10,7 @@ use crate::buffers::Buffers;
 use crate::error::Result;
 use crate::image::Image;
 use crate::metrics;
+use crate::options::DenoiseOptions;
 
 /// One row of the sweep table.
 #[derive(Clone, Debug, Serialize)]
@@ -88,7 +89,7 @@ pub fn run(
         for _ in 0..repeat {
             let mut b = buffers.clone();
             let start = Instant::now();
-            let result = s.pipeline.run(&mut b, seed, false)?;
+            let result = s.pipeline.run(&mut b, &DenoiseOptions::seeded(seed))?;
             times.push(start.elapsed().as_secs_f64());
             first.get_or_insert(result);
             on_run();

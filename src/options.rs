@@ -1,0 +1,103 @@
+//! How a run goes, apart from its inputs and its pipeline: the seed, the threads, progress and
+//! cancellation. One struct for the library call and the command line, so neither grows
+//! positional flags.
+
+use std::fmt;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use crate::error::{Error, Result};
+
+/// Most worker threads accepted: far beyond any machine gsid runs on, so a larger count is a typo.
+pub const MAX_THREADS: usize = 1024;
+
+/// Told how far a run is: the fraction done (0 to 1, never decreasing) and the id of the stage
+/// that runs next (`done` at the end). Called on the thread that started the run.
+pub type ProgressFn = dyn Fn(f32, &str) + Send + Sync;
+
+/// Stops a run from another thread (a user pressing Esc): the run checks it before every stage,
+/// at every pyramid level, and ends with [`Error::Cancelled`], returning no image.
+#[derive(Clone, Debug, Default)]
+pub struct CancelToken(Arc<AtomicBool>);
+
+impl CancelToken {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Asks every run holding this token (or a clone of it) to stop.
+    pub fn cancel(&self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+
+    pub fn is_cancelled(&self) -> bool {
+        self.0.load(Ordering::Relaxed)
+    }
+}
+
+/// Everything about a run but its inputs and its pipeline. `Default` is seed 0, all cores, no
+/// progress and no way to cancel.
+#[derive(Clone, Default)]
+pub struct DenoiseOptions {
+    /// Seed of every random choice: the same inputs, pipeline and seed give the same bits on any
+    /// number of threads.
+    pub seed: u64,
+    /// Worker threads, 1 to [`MAX_THREADS`]; `None` runs on the caller's rayon pool (all cores
+    /// unless the caller set up another).
+    pub threads: Option<usize>,
+    /// Draw progress bars on stderr when it is a terminal (the command line's choice).
+    pub progress_bar: bool,
+    /// Called as the run goes (see [`ProgressFn`]).
+    pub progress: Option<Arc<ProgressFn>>,
+    /// Checked before every stage (see [`CancelToken`]).
+    pub cancel: Option<CancelToken>,
+}
+
+impl DenoiseOptions {
+    /// The defaults with this seed.
+    pub fn seeded(seed: u64) -> Self {
+        DenoiseOptions {
+            seed,
+            ..Self::default()
+        }
+    }
+
+    /// Runs `f` on a pool of `threads` workers, or on the caller's pool when none is asked for or
+    /// it already has that many.
+    pub(crate) fn install<T: Send>(&self, f: impl FnOnce() -> T + Send) -> Result<T> {
+        match self.threads {
+            Some(n) if n != rayon::current_num_threads() => Ok(thread_pool(n)?.install(f)),
+            _ => Ok(f()),
+        }
+    }
+
+    /// Tells the progress callback, if any.
+    pub(crate) fn report(&self, fraction: f32, stage: &str) {
+        if let Some(progress) = &self.progress {
+            progress(fraction.clamp(0.0, 1.0), stage);
+        }
+    }
+}
+
+impl fmt::Debug for DenoiseOptions {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("DenoiseOptions")
+            .field("seed", &self.seed)
+            .field("threads", &self.threads)
+            .field("progress_bar", &self.progress_bar)
+            .field("progress", &self.progress.as_ref().map(|_| "callback"))
+            .field("cancel", &self.cancel)
+            .finish()
+    }
+}
+
+/// A pool of `n` worker threads, `n` checked to be 1 to [`MAX_THREADS`].
+pub(crate) fn thread_pool(n: usize) -> Result<rayon::ThreadPool> {
+    if !(1..=MAX_THREADS).contains(&n) {
+        return Err(Error::range("--threads", n, &format!("1 to {MAX_THREADS}")));
+    }
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(n)
+        .build()
+        .map_err(|e| Error::Runtime(format!("cannot start {n} threads: {e}")))
+}

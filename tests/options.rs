@@ -1,0 +1,97 @@
+//! The one set of run options (`DenoiseOptions`): progress is told in order, a cancelled run ends
+//! with `Cancelled` and no image, and a thread count changes no bit.
+
+use std::sync::{Arc, Mutex};
+
+use gsid::{Buffers, CancelToken, DenoiseOptions, Error, Feature, Image, PipelineSpec, RenderSet};
+
+/// A small noisy set with albedo and normals.
+fn buffers() -> Buffers {
+    let (w, h) = (33, 21);
+    let noisy: Vec<f32> = (0..w * h * 3)
+        .map(|i| 0.2 + 0.3 * ((i * 7919 % 17) as f32 / 17.0))
+        .collect();
+    let albedo = vec![0.7; w * h * 3];
+    let normal: Vec<f32> = (0..w * h).flat_map(|_| [0.0, 0.0, 1.0]).collect();
+    let set = RenderSet::new(Image::from_vec(w, h, 3, noisy).unwrap())
+        .with(Feature::Albedo, Image::from_vec(w, h, 3, albedo).unwrap())
+        .unwrap()
+        .with(Feature::Normal, Image::from_vec(w, h, 3, normal).unwrap())
+        .unwrap();
+    Buffers::from(set)
+}
+
+#[test]
+fn progress_is_told_stage_by_stage_in_order_and_ends_at_one() {
+    let pipeline = PipelineSpec::builtin("full").unwrap().build().unwrap();
+    let seen = Arc::new(Mutex::new(Vec::<(f32, String)>::new()));
+    let sink = seen.clone();
+    let options = DenoiseOptions {
+        progress: Some(Arc::new(move |f, stage: &str| {
+            sink.lock().unwrap().push((f, stage.to_string()))
+        })),
+        ..DenoiseOptions::seeded(3)
+    };
+    pipeline.run(&mut buffers(), &options).unwrap();
+    let seen = seen.lock().unwrap();
+    let ids: Vec<&str> = pipeline.stages.iter().map(|s| s.id()).collect();
+    assert_eq!(seen.len(), ids.len() + 1, "{seen:?}");
+    for (k, id) in ids.iter().enumerate() {
+        assert_eq!(seen[k].1, *id);
+    }
+    assert!(seen.windows(2).all(|w| w[0].0 < w[1].0), "{seen:?}");
+    assert_eq!(seen[0].0, 0.0);
+    assert_eq!(*seen.last().unwrap(), (1.0, "done".to_string()));
+}
+
+#[test]
+fn a_cancelled_run_ends_with_cancelled_and_no_image() {
+    let pipeline = PipelineSpec::builtin("full").unwrap().build().unwrap();
+    // Cancelled before the run: no stage runs.
+    let cancel = CancelToken::new();
+    cancel.cancel();
+    let options = DenoiseOptions {
+        cancel: Some(cancel),
+        ..DenoiseOptions::default()
+    };
+    let err = pipeline.run(&mut buffers(), &options).err().unwrap();
+    assert!(matches!(err, Error::Cancelled), "{err}");
+    // Cancelled from the progress callback once the second stage is about to run.
+    let cancel = CancelToken::new();
+    let trigger = cancel.clone();
+    let second = pipeline.stages[1].id().to_string();
+    let options = DenoiseOptions {
+        progress: Some(Arc::new(move |_, stage: &str| {
+            if stage == second {
+                trigger.cancel()
+            }
+        })),
+        cancel: Some(cancel),
+        ..DenoiseOptions::default()
+    };
+    let mut b = buffers();
+    let err = pipeline.run(&mut b, &options).err().unwrap();
+    assert!(matches!(err, Error::Cancelled), "{err}");
+    assert!(b.get("out").is_none());
+}
+
+#[test]
+fn a_thread_count_changes_no_bit_and_is_checked() {
+    let pipeline = PipelineSpec::builtin("balanced").unwrap().build().unwrap();
+    let run = |threads| {
+        let options = DenoiseOptions {
+            threads,
+            ..DenoiseOptions::seeded(11)
+        };
+        pipeline.run(&mut buffers(), &options).unwrap().0
+    };
+    let one = run(Some(1));
+    assert_eq!(one.data(), run(Some(3)).data());
+    assert_eq!(one.data(), run(None).data());
+    let options = DenoiseOptions {
+        threads: Some(0),
+        ..DenoiseOptions::default()
+    };
+    let err = pipeline.run(&mut buffers(), &options).err().unwrap();
+    assert!(err.to_string().contains("threads"), "{err}");
+}
