@@ -6,10 +6,11 @@
 //! frame token) is found before the first frame is read. A failing frame is named by its number;
 //! the run stops there unless `--keep-going`, which ends with one summary error instead.
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use super::args::DenoiseArgs;
-use super::frame::denoise_or_skip;
+use super::frame::{denoise_or_skip, resolved};
 use super::report::{Entry, Outcome, PipelineJson, SequenceJson};
 use super::stdout::print_json;
 use crate::error::{Error, Result};
@@ -181,6 +182,56 @@ pub fn parse_frames(text: &str) -> Result<Vec<u64>> {
     Ok(frames)
 }
 
+/// Before any work, over the whole plan: no frame's output (`-o`, `--save-buffer`) is an input of
+/// any frame, nor inside a folder that is one (a render set's folder, whose buffers are found by
+/// name: a file written there would be read as a buffer by a later frame or run).
+fn check_plan(frames: &[Frame]) -> Result<()> {
+    let mut inputs: HashMap<PathBuf, &str> = HashMap::new();
+    for frame in frames {
+        let a = &frame.args;
+        let named = a.inputs.slots().into_iter().filter_map(|(_, p)| p.as_ref());
+        for path in a.dir.iter().chain(named) {
+            inputs.insert(resolved(&without_layer(path)), &frame.label);
+        }
+    }
+    for frame in frames {
+        let a = &frame.args;
+        let saves = a.saves()?;
+        for out in std::iter::once(&a.output).chain(saves.iter().map(|(_, p)| p)) {
+            let full = resolved(out);
+            for (depth, place) in full.ancestors().enumerate() {
+                let Some(label) = inputs.get(place) else {
+                    continue;
+                };
+                let what = if depth == 0 {
+                    "an input"
+                } else {
+                    "inside the input folder"
+                };
+                return Err(Error::output(
+                    out,
+                    format!(
+                        "is {what} {} of frame {label}; refusing to write over an input",
+                        place.display()
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The file of `file.exr:Layer` (the path as it is when it names a file or no such file exists).
+fn without_layer(path: &Path) -> PathBuf {
+    if path.exists() {
+        return path.to_path_buf();
+    }
+    match path.to_str().and_then(|s| s.rsplit_once(':')) {
+        Some((file, _)) if Path::new(file).is_file() => PathBuf::from(file),
+        _ => path.to_path_buf(),
+    }
+}
+
 /// One frame of a batch: its label (number or render set name) and the arguments of its run.
 struct Frame {
     label: String,
@@ -277,7 +328,8 @@ impl Batch {
                     args: a,
                 }
             })
-            .collect();
+            .collect::<Vec<_>>();
+        check_plan(&frames)?;
         Ok(Some(Batch {
             frames,
             out_dir: None,
@@ -315,7 +367,8 @@ impl Batch {
                     args: a,
                 }
             })
-            .collect();
+            .collect::<Vec<_>>();
+        check_plan(&frames)?;
         Ok(Batch {
             frames,
             out_dir: Some(args.output.clone()),

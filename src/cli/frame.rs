@@ -13,7 +13,7 @@ use crate::pipeline::{Pipeline, OUTPUT_BUFFER};
 use crate::run::RunContext;
 
 /// The absolute form of a path that may not exist yet: its folder resolved, its name kept.
-fn resolved(p: &Path) -> PathBuf {
+pub(super) fn resolved(p: &Path) -> PathBuf {
     if let Ok(full) = p.canonicalize() {
         return full;
     }

@@ -9,11 +9,11 @@ use gsid::{io, Buffers, Image};
 
 pub const FIXTURE: &str = "fixtures/mitsuba-cornell";
 
+/// Runs the binary: this build's, or the one `GSID_BIN` names (to watch a test fail on an older
+/// build: `GSID_BIN=old/gsid cargo test --test NAME`).
 pub fn gsid(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gsid"))
-        .args(args)
-        .output()
-        .expect("run gsid")
+    let bin = std::env::var_os("GSID_BIN").unwrap_or_else(|| env!("CARGO_BIN_EXE_gsid").into());
+    Command::new(bin).args(args).output().expect("run gsid")
 }
 
 /// `gsid denoise DIR -o OUT` with the default pipeline.
