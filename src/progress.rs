@@ -37,8 +37,8 @@ impl Progress {
     /// Prints a line on stderr above the bar, so the bar is not torn by it.
     pub fn println(&self, line: &str) {
         match &self.bar {
-            Some(b) => b.suspend(|| eprintln!("{line}")),
-            None => eprintln!("{line}"),
+            Some(b) => b.suspend(|| say(line)),
+            None => say(line),
         }
     }
 
@@ -48,6 +48,24 @@ impl Progress {
         }
     }
 }
+
+/// Writes `line` to stderr. A full or closed stderr (`2>/dev/full`, a reader that went away) loses
+/// the line but never stops the run: `eprintln!` would panic there.
+pub fn say(line: &str) {
+    use std::io::Write;
+    let mut err = std::io::stderr().lock();
+    let _ = writeln!(err, "{line}");
+}
+
+/// [`say`] with `format!` arguments.
+#[cfg(feature = "cli")]
+macro_rules! say_err {
+    ($($arg:tt)*) => {
+        $crate::progress::say(&format!($($arg)*))
+    };
+}
+#[cfg(feature = "cli")]
+pub(crate) use say_err;
 
 /// The styled bar.
 #[cfg(feature = "cli")]

@@ -387,7 +387,8 @@ impl PipelineSpec {
         })
     }
 
-    /// Finds a pipeline by name (`pipelines/NAME.toml` in the current folder, else built in) or by file path.
+    /// Finds a pipeline: a path (one that ends in `.toml` or holds a separator) is read as a file,
+    /// any other name is the built-in pipeline of that name.
     pub fn resolve(name_or_path: &str) -> Result<Self> {
         let as_path = Path::new(name_or_path);
         let looks_like_file =
@@ -396,11 +397,8 @@ impl PipelineSpec {
             let text = std::fs::read_to_string(as_path).map_err(|e| Error::file(as_path, e))?;
             return Self::parse(&text, name_or_path);
         }
-        let local = Path::new("pipelines").join(format!("{name_or_path}.toml"));
-        if local.is_file() {
-            let text = std::fs::read_to_string(&local).map_err(|e| Error::file(&local, e))?;
-            return Self::parse(&text, &local.display().to_string());
-        }
+        // A bare name is always the built-in pipeline, never a file that happens to sit in the
+        // working folder (`./pipelines/full.toml` would otherwise change what `full` means).
         Self::builtin(name_or_path)
     }
 

@@ -386,3 +386,36 @@ fn thread_counts_outside_1_to_1024_are_refused_by_every_command() {
     }
     assert!(files_in(tmp.path()).is_empty());
 }
+
+/// A bare pipeline name is the built-in pipeline, whatever the working folder holds: a
+/// `pipelines/full.toml` there (here plain SID under the name `full`) is not run in its place.
+#[test]
+fn a_pipeline_name_is_never_a_file_in_the_working_folder() {
+    let tmp = tempfile::tempdir().unwrap();
+    std::fs::create_dir(tmp.path().join("pipelines")).unwrap();
+    let sid = std::fs::read_to_string("pipelines/sid.toml").unwrap();
+    let impostor = sid.replacen("name = \"sid\"", "name = \"full\"", 1);
+    assert_ne!(sid, impostor);
+    std::fs::write(tmp.path().join("pipelines/full.toml"), impostor).unwrap();
+    let set = std::fs::canonicalize(format!("{FIXTURE}/spp4")).unwrap();
+    let out = gsid_command()
+        .current_dir(tmp.path())
+        .args([
+            "denoise",
+            set.to_str().unwrap(),
+            "-o",
+            "o.exr",
+            "--json",
+            "-q",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let builtin = gsid::PipelineSpec::builtin("full")
+        .unwrap()
+        .build()
+        .unwrap();
+    let ids: Vec<&str> = builtin.stages.iter().map(|s| s.id()).collect();
+    assert_eq!(json["pipeline"]["stages"], serde_json::json!(ids), "{json}");
+}

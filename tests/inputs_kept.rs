@@ -105,3 +105,22 @@ proptest! {
         }
     }
 }
+
+/// A folder of render sets goes into a folder: `-o out.exr` is refused (it made a folder named
+/// `out.exr` holding the images).
+#[test]
+fn a_folder_of_sets_refuses_an_image_file_as_its_output() {
+    let tmp = tempfile::tempdir().unwrap();
+    let renders = sets(tmp.path(), &["setA", "setB"]);
+    let target = tmp.path().join("out.exr");
+    let out = gsid(&[
+        "denoise",
+        renders.to_str().unwrap(),
+        "-o",
+        target.to_str().unwrap(),
+        "-p",
+        "fast",
+    ]);
+    assert_bad_input(&out, "out.exr");
+    assert!(!target.exists());
+}

@@ -42,3 +42,20 @@ fn out_of_range_factors_are_named() {
         );
     }
 }
+
+/// A pyramid with nothing to run at its levels is refused, naming its sub-list (it was accepted
+/// and blended the input's levels back into the input).
+#[test]
+fn a_pyramid_without_sub_stages_is_refused() {
+    let text = "name = \"x\"\n[[stage]]\nkind = \"pyramid\"\nlevels = 2\n";
+    let err = PipelineSpec::parse(text, "x.toml")
+        .unwrap()
+        .build()
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(
+        err.contains("x.toml") && err.contains("pyramid.stages"),
+        "{err}"
+    );
+}

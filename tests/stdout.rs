@@ -105,3 +105,121 @@ fn a_full_stdout_is_one_error_line_and_exit_1() {
         assert_eq!(lines.len(), 1, "{cmd:?}: {err}");
     }
 }
+
+/// A full device of the test's own (`mknod c 1 7`), or `None` where that needs root and we are not.
+fn full_device(dir: &Path) -> Option<std::path::PathBuf> {
+    // SAFETY: geteuid has no preconditions.
+    if unsafe { libc::geteuid() } != 0 {
+        eprintln!("skipped: mknod needs root");
+        return None;
+    }
+    let full = dir.join("full");
+    let made = Command::new("mknod")
+        .arg(&full)
+        .args(["c", "1", "7"])
+        .status()
+        .unwrap();
+    made.success().then_some(full)
+}
+
+/// The write end of a pipe whose reader is already gone.
+fn closed_pipe() -> OwnedFd {
+    let mut fds = [0; 2];
+    // SAFETY: pipe writes two new descriptors into the array it is given.
+    assert_eq!(unsafe { libc::pipe(fds.as_mut_ptr()) }, 0);
+    // SAFETY: both descriptors were just created by pipe and are owned here alone.
+    let (read, write) = unsafe { (OwnedFd::from_raw_fd(fds[0]), OwnedFd::from_raw_fd(fds[1])) };
+    drop(read);
+    write
+}
+
+/// Runs gsid with `args`, its stderr full (`Some(device)`) or a closed pipe (`None`).
+fn with_stderr(args: &[&str], full: Option<&Path>) -> Output {
+    let err = match full {
+        Some(device) => Stdio::from(
+            std::fs::OpenOptions::new()
+                .write(true)
+                .open(device)
+                .unwrap(),
+        ),
+        None => Stdio::from(closed_pipe()),
+    };
+    gsid_command()
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(err)
+        .output()
+        .unwrap()
+}
+
+/// Notes, progress and errors are written to stderr; when it is full or its reader went away the
+/// run goes on (it panicked: exit 101, and a sequence stopped after its first frame).
+#[test]
+fn a_full_or_closed_stderr_never_stops_a_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let full = full_device(tmp.path());
+    let shot = tmp.path().join("shot");
+    std::fs::create_dir(&shot).unwrap();
+    for n in 1..=3 {
+        let color = format!("{FIXTURE}/spp4/color.exr");
+        std::fs::copy(color, shot.join(format!("b.{n:04}.exr"))).unwrap();
+    }
+    let set = format!("{FIXTURE}/spp4");
+    for (k, device) in [None, full.as_deref()].into_iter().enumerate() {
+        if k == 1 && device.is_none() {
+            continue;
+        }
+        let out = tmp.path().join(format!("out{k}.exr"));
+        let o = out.to_str().unwrap();
+        let run = with_stderr(&["denoise", &set, "-o", o, "-p", "fast"], device);
+        assert_eq!(run.status.code(), Some(0), "stderr {k}");
+        assert!(out.is_file());
+        let missing = tmp.path().join("missing");
+        let run = with_stderr(&["denoise", missing.to_str().unwrap(), "-o", o], device);
+        assert_eq!(run.status.code(), Some(2), "stderr {k}, error path");
+        let pattern = shot.join("b.####.exr");
+        let outs = tmp.path().join(format!("seq{k}"));
+        let out_pattern = outs.join("d.####.exr");
+        std::fs::create_dir(&outs).unwrap();
+        let run = with_stderr(
+            &[
+                "denoise",
+                pattern.to_str().unwrap(),
+                "-o",
+                out_pattern.to_str().unwrap(),
+                "-p",
+                "fast",
+            ],
+            device,
+        );
+        assert_eq!(run.status.code(), Some(0), "stderr {k}, sequence");
+        assert_eq!(
+            files_in(&outs).len(),
+            3,
+            "stderr {k}: {:?}",
+            files_in(&outs)
+        );
+    }
+}
+
+/// `--help` and `--version` that cannot be written are a failure (they exited 0); a reader that
+/// went away is not.
+#[test]
+fn help_and_version_into_a_full_stdout_exit_1() {
+    let tmp = tempfile::tempdir().unwrap();
+    let Some(full) = full_device(tmp.path()) else {
+        return;
+    };
+    for args in [&["--help"][..], &["--version"], &["denoise", "--help"]] {
+        let out = std::fs::OpenOptions::new().write(true).open(&full).unwrap();
+        let run = gsid_command()
+            .args(args)
+            .stdout(Stdio::from(out))
+            .output()
+            .unwrap();
+        assert_eq!(run.status.code(), Some(1), "{args:?}: {}", stderr(&run));
+        assert!(!stderr(&run).contains("panicked"), "{args:?}");
+        let run = into_closed_pipe(args);
+        assert_eq!(run.status.code(), Some(0), "{args:?}: {}", stderr(&run));
+    }
+}

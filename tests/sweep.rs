@@ -154,6 +154,11 @@ fn bad_input_exits_2_with_one_line_and_writes_nothing() {
             "gsid.walks",
         ),
         (&["--vary", "gsid.walks=2", "--repeat", "0"], "--repeat"),
+        // Refused before allocating a table of 4 G runs (it aborted).
+        (
+            &["--vary", "gsid.walks=2", "--repeat", "4294967295"],
+            "--repeat",
+        ),
         (&[], "--vary"),
     ];
     for (extra, culprit) in cases {

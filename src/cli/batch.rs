@@ -350,10 +350,12 @@ impl Batch {
                 "applies to one render set or a frame pattern, not a folder of render sets",
             ));
         }
-        if args.output.exists() && !args.output.is_dir() {
+        let names_an_image =
+            !args.output.exists() && io::ImageFormat::of_output(&args.output).is_ok();
+        if (args.output.exists() && !args.output.is_dir()) || names_an_image {
             return Err(Error::output(
                 &args.output,
-                "is not a folder (a folder of render sets is written into one)",
+                "is not a folder (a folder of render sets is written into one, one image per set)",
             ));
         }
         let frames = render_set_folders(dir)?
@@ -458,7 +460,7 @@ impl Batch {
             } else {
                 String::new()
             };
-            eprintln!(
+            crate::progress::say_err!(
                 "gsid: {total} frames: {done} denoised, {skipped} skipped (output exists), {} failed{rest}",
                 failed.len()
             );

@@ -29,7 +29,7 @@ fn denoise_in_pool(args: &DenoiseArgs, ctx: &RunContext) -> Result<()> {
     }
     let say = |line: &str| {
         if ctx.progress {
-            eprintln!("gsid: {line}");
+            crate::progress::say_err!("gsid: {line}");
         }
     };
     let outcome = denoise_or_skip(args, &pipeline, ctx, ctx.progress, &say)?;

@@ -29,15 +29,24 @@ pub fn main() -> i32 {
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => {
+            // Help and version go to stdout (exit 0), usage errors to stderr (exit 2). Help that
+            // cannot be written fails like any output; a reader that went away ends quietly.
             let code = if e.use_stderr() { 2 } else { 0 };
-            let _ = e.print();
-            return code;
+            return match e.print() {
+                Err(err) if code == 0 && err.kind() != std::io::ErrorKind::BrokenPipe => {
+                    crate::progress::say(&format!(
+                        "gsid: error: cannot write standard output: {err}"
+                    ));
+                    1
+                }
+                _ => code,
+            };
         }
     };
     match run(cli) {
         Ok(()) | Err(Error::StdoutClosed) => 0,
         Err(e) => {
-            eprintln!("gsid: error: {e}");
+            crate::progress::say_err!("gsid: error: {e}");
             e.exit_code()
         }
     }

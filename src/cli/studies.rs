@@ -66,14 +66,21 @@ pub(super) fn ablate(args: &AblateArgs, quiet: bool) -> Result<()> {
     Ok(())
 }
 
+/// Most runs of one sweep setting: a median of more says nothing new, so a larger count is a typo.
+const MAX_REPEAT: usize = 1000;
+
 /// The files `sweep` writes into its `--out` folder.
 const SWEEP_FILES: [&str; 3] = ["sweep.csv", "sweep.png", "sweep.svg"];
 
 pub(super) fn sweep(args: &SweepArgs, quiet: bool) -> Result<()> {
     // Everything that can be wrong with the arguments is found before the render set is even read.
     let ctx = args.run.context(quiet)?;
-    if args.repeat == 0 {
-        return Err(Error::config("--repeat", "must be at least 1"));
+    if !(1..=MAX_REPEAT).contains(&args.repeat) {
+        return Err(Error::range(
+            "--repeat",
+            args.repeat,
+            &format!("1 to {MAX_REPEAT}"),
+        ));
     }
     let base = args.run.spec()?;
     base.build()?;
@@ -114,7 +121,7 @@ fn sweep_into(
     );
     if ctx.progress {
         for line in notes {
-            eprintln!("gsid: {line}");
+            crate::progress::say_err!("gsid: {line}");
         }
     }
     let runs = (settings.len() * args.repeat) as u64;
@@ -137,7 +144,7 @@ fn sweep_into(
     svg_out.write_bytes(svg_text.as_bytes())?;
     if ctx.progress {
         for line in sweep::notes(&rows) {
-            eprintln!("gsid: {line}");
+            crate::progress::say_err!("gsid: {line}");
         }
     }
     say!("{}", sweep::table(&rows))?;

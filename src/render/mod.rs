@@ -77,7 +77,7 @@ pub fn run(args: &RenderArgs, quiet: bool) -> Result<()> {
         } else {
             names.join(", ")
         };
-        eprintln!(
+        crate::progress::say_err!(
             "gsid: rendering {} with effects: {list}",
             args.scene.display()
         );
@@ -117,7 +117,7 @@ pub fn run(args: &RenderArgs, quiet: bool) -> Result<()> {
         }
         if ctx.progress {
             let samples = r.stats.paths as f64;
-            eprintln!(
+            crate::progress::say_err!(
                 "gsid: {label}: {:.2} s, {:.2} M samples/s on {} threads",
                 r.seconds,
                 samples / r.seconds / 1e6,

@@ -12,8 +12,13 @@ pub const FIXTURE: &str = "fixtures/mitsuba-cornell";
 /// Runs the binary: this build's, or the one `GSID_BIN` names (to watch a test fail on an older
 /// build: `GSID_BIN=old/gsid cargo test --test NAME`).
 pub fn gsid(args: &[&str]) -> Output {
+    gsid_command().args(args).output().expect("run gsid")
+}
+
+/// The command [`gsid`] runs, to be given arguments, a working folder, standard streams.
+pub fn gsid_command() -> Command {
     let bin = std::env::var_os("GSID_BIN").unwrap_or_else(|| env!("CARGO_BIN_EXE_gsid").into());
-    Command::new(bin).args(args).output().expect("run gsid")
+    Command::new(bin)
 }
 
 /// `gsid denoise DIR -o OUT` with the default pipeline.

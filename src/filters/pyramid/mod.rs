@@ -108,6 +108,13 @@ impl PyramidStage {
         let id = spec.id.as_str();
         let params: PyramidParams = parse_params(id, spec.params.clone())?;
         params.validate().map_err(|e| e.in_context(id))?;
+        if spec.children.is_empty() {
+            // It would run nothing at any level and blend the levels of the input back into itself.
+            return Err(Error::config(
+                format!("{id}.stages"),
+                "a pyramid needs at least one sub-stage ([[stage.stages]]) to run at every level",
+            ));
+        }
         let names_child = |k: &String| spec.children.iter().any(|c| &c.id == k);
         if let Some(bad) = spec.overrides.every_level.keys().find(|k| !names_child(k)) {
             return Err(Error::config(
