@@ -281,7 +281,17 @@ impl Conditioning {
 
     /// Brings a radiance buffer filtered at [`Conditioning::scale`] back to the input's scale.
     pub fn undo(&self, img: &mut Image) {
-        scale_image(img, 1.0 / self.scale);
+        let inverse = 1.0 / self.scale;
+        if inverse.is_finite() {
+            scale_image(img, inverse);
+        } else {
+            // A scale below 1/f32::MAX (a render near f32's top, brightness ~3e37) has no f32
+            // inverse: multiply in f64, where it has one, and round once.
+            let inverse = 1.0 / self.scale as f64;
+            img.data_mut()
+                .par_iter_mut()
+                .for_each(|v| *v = (*v as f64 * inverse) as f32);
+        }
     }
 }
 

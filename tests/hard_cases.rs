@@ -102,7 +102,9 @@ fn nan_and_inf_pixels_are_sanitised() {
 #[test]
 fn black_and_constant_images_come_back_unchanged() {
     for p in PIPELINES {
-        for value in [0.0f32, 0.37, 1e5] {
+        // 3e37: a scale to unit brightness below 1/f32::MAX, whose f32 inverse is infinite (it came
+        // back +inf); 1e-30: one near f32's bottom.
+        for value in [0.0f32, 0.37, 1e5, 3e37, 1e-30] {
             let mut b = synthetic_set(9, 7);
             b.insert("color", Image::filled(9, 7, 3, value)).unwrap();
             let out = run(p, &[], &mut b);
