@@ -27,7 +27,7 @@
 //! kind = "gsid"
 //! ```
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashSet};
 use std::path::Path;
 
 use crate::error::{Error, Result};
@@ -289,8 +289,36 @@ impl StageSpec {
 
 /// Parses an array of stage tables (`[[stage]]`, or a composite stage's sub-list); `prefix` names
 /// the array in errors (e.g. `stage`, `pyramid.stages`).
-fn parse_stage_list(values: Vec<toml::Value>, prefix: &str) -> Result<Vec<StageSpec>> {
+/// Most stages one pipeline file may hold, sub-stages included: far more than any pipeline runs.
+pub const MAX_STAGES: usize = 256;
+
+/// Deepest nesting of sub-lists: a pyramid inside a pyramid, no deeper. Every level of nesting
+/// multiplies the planes alive at once.
+pub const MAX_NESTING: usize = 2;
+
+/// Parses a `[[stage]]` list (`depth` 0) or a sub-list, counting the stages parsed so far in
+/// `count`; ids are checked against a set, so a long list parses in time linear in its length.
+fn parse_stage_list(
+    values: Vec<toml::Value>,
+    prefix: &str,
+    depth: usize,
+    count: &mut usize,
+) -> Result<Vec<StageSpec>> {
+    if depth > MAX_NESTING {
+        return Err(Error::config(
+            prefix,
+            format!("sub-lists nest deeper than {MAX_NESTING} levels"),
+        ));
+    }
+    *count += values.len();
+    if *count > MAX_STAGES {
+        return Err(Error::config(
+            prefix,
+            format!("the pipeline has more than {MAX_STAGES} stages"),
+        ));
+    }
     let mut stages: Vec<StageSpec> = Vec::new();
+    let mut ids: HashSet<String> = HashSet::new();
     for (n, value) in values.into_iter().enumerate() {
         let here = format!("{prefix}[{n}].");
         let toml::Value::Table(mut table) = value else {
@@ -299,7 +327,7 @@ fn parse_stage_list(values: Vec<toml::Value>, prefix: &str) -> Result<Vec<StageS
         let kind = take_string(&mut table, "kind", &here)?
             .ok_or_else(|| Error::config(format!("{here}kind"), "is required"))?;
         let id = take_string(&mut table, "id", &here)?.unwrap_or_else(|| kind.clone());
-        if stages.iter().any(|s| s.id == id) {
+        if !ids.insert(id.clone()) {
             return Err(Error::config(
                 format!("{here}id"),
                 format!("`{id}` is used twice; give each stage of the same kind its own id"),
@@ -309,7 +337,9 @@ fn parse_stage_list(values: Vec<toml::Value>, prefix: &str) -> Result<Vec<StageS
         let output =
             take_string(&mut table, "output", &here)?.unwrap_or_else(|| OUTPUT_BUFFER.into());
         let children = match table.remove("stages") {
-            Some(toml::Value::Array(a)) => parse_stage_list(a, &format!("{id}.stages"))?,
+            Some(toml::Value::Array(a)) => {
+                parse_stage_list(a, &format!("{id}.stages"), depth + 1, count)?
+            }
             Some(_) => {
                 return Err(Error::config(
                     format!("{id}.stages"),
@@ -378,7 +408,7 @@ impl PipelineSpec {
                 ))
             }
         };
-        let stages = parse_stage_list(raw_stages, "stage").map_err(ctx)?;
+        let stages = parse_stage_list(raw_stages, "stage", 0, &mut 0).map_err(ctx)?;
         Ok(PipelineSpec {
             name,
             description,

@@ -59,3 +59,52 @@ fn a_pyramid_without_sub_stages_is_refused() {
         "{err}"
     );
 }
+
+/// `n` stages of one kind, each with its own id.
+fn many_stages(n: usize) -> String {
+    let mut text = String::from("name = \"many\"\n");
+    for k in 0..n {
+        text.push_str(&format!("[[stage]]\nkind = \"atrous\"\nid = \"a{k}\"\n"));
+    }
+    text
+}
+
+/// A pipeline file is bounded: at most `MAX_STAGES` stages (a 10 MB file of 171 k stages took 77 s to
+/// parse, its ids compared pairwise), sub-lists at most `MAX_NESTING` deep (each level of nested
+/// pyramids doubled the memory: 20 levels took 3 GB on an 8×8 image).
+#[test]
+fn stage_count_and_nesting_are_bounded() {
+    use gsid::spec::{MAX_NESTING, MAX_STAGES};
+    assert!(PipelineSpec::parse(&many_stages(MAX_STAGES), "m.toml").is_ok());
+    for n in [MAX_STAGES + 1, 20_000] {
+        let err = PipelineSpec::parse(&many_stages(n), "m.toml")
+            .err()
+            .unwrap();
+        assert!(
+            err.to_string()
+                .contains(&format!("more than {MAX_STAGES} stages")),
+            "{err}"
+        );
+    }
+    // Pyramids nested `depth` deep, each holding the next, the innermost an à-trous pass.
+    let nested = |depth: usize| {
+        let mut text = String::from("name = \"nest\"\n");
+        let mut table = String::from("stage");
+        for level in 0..depth {
+            text.push_str(&format!(
+                "[[{table}]]\nkind = \"pyramid\"\nid = \"p{level}\"\n"
+            ));
+            table.push_str(".stages");
+        }
+        text.push_str(&format!("[[{table}]]\nkind = \"atrous\"\n"));
+        text
+    };
+    PipelineSpec::parse(&nested(MAX_NESTING), "n.toml")
+        .unwrap()
+        .build()
+        .unwrap();
+    for depth in [MAX_NESTING + 1, 20] {
+        let err = PipelineSpec::parse(&nested(depth), "n.toml").err().unwrap();
+        assert!(err.to_string().contains("nest deeper"), "{depth}: {err}");
+    }
+}
