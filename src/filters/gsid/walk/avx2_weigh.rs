@@ -9,7 +9,7 @@
 
 use std::arch::x86_64::*;
 
-use super::avx2::{lanes, to_f64, widen, SLOTS};
+use super::avx2_lanes::{lanes, to_f64, widen, SLOTS};
 use super::step::Accum;
 use crate::kernels::fastmath::avx2::exp_neg8;
 

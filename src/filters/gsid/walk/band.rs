@@ -8,10 +8,10 @@ use rayon::prelude::*;
 
 #[cfg(target_arch = "x86_64")]
 use super::avx2;
+use super::params::{inv_two_sigma2, WalkInput, WalkParams, WalkStats};
 use super::scalar::{walk_unbounded, walk_windowed};
 use super::step::Accum;
 use super::tables::{Near, Pairs, Window, RUN_PAD};
-use super::{inv_two_sigma2, WalkInput, WalkParams, WalkStats};
 use crate::image::Image;
 use crate::kernels::simd::Kernel;
 

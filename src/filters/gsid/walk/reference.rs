@@ -1,9 +1,9 @@
 //! The reference kernel: the readable specification of the walks (docs/ALGORITHM.md §3), with every
 //! distance recomputed where a step needs it. The fast kernels must give its bits.
 
+use super::params::{inv_two_sigma2, WalkInput, WalkParams, WalkStats, OFFSETS};
 use super::rng::{uniform, walk_key};
 use super::step::{choose, step_weight, Accum};
-use super::{inv_two_sigma2, WalkInput, WalkParams, WalkStats, OFFSETS};
 use crate::image::Image;
 use crate::kernels::fastmath::exp_neg;
 
@@ -16,8 +16,8 @@ fn neighbour(x: usize, y: usize, k: usize, w: usize, h: usize) -> Option<(usize,
         .then_some((nx as usize, ny as usize))
 }
 
-/// [`Engine::Reference`](super::Engine::Reference): every logit recomputed from the features, on
-/// one thread. `on_row` is called once per finished row.
+/// [`Engine::Reference`](super::job::Engine::Reference): every logit recomputed from the
+/// features, on one thread. `on_row` is called once per finished row.
 pub(super) fn denoise(
     input: &WalkInput,
     params: &WalkParams,

@@ -1,9 +1,9 @@
 //! The portable kernel: walks lane by lane, from the band's tables ([`Near`], [`Window`]).
 
+use super::params::{lane_offsets, WalkInput, WalkParams};
 use super::rng::{uniform, walk_key};
 use super::step::{choose, step_weight, Accum};
 use super::tables::{Near, Window};
-use super::{lane_offsets, WalkInput, WalkParams};
 use crate::kernels::fastmath::exp_neg;
 
 /// Walks from the window's x0, lane by lane (the portable kernel).

@@ -2,7 +2,7 @@
 //! weights, the weight of the pixel it reaches, and the f64 colour sums. Every kernel runs these
 //! operations in this order, so all of them give the same bits.
 
-use super::{WalkInput, WalkParams};
+use super::params::{WalkInput, WalkParams};
 use crate::kernels::fastmath::{exp_neg, ln_normal};
 
 /// Below this Σ exp(a) a step samples in the max-subtracted log domain instead: the linear
@@ -153,15 +153,16 @@ impl Accum {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     //! The pick against adversarial weights: lanes 3 and 7 (the ends of the prefix sum's two
     //! halves) of weight 0, and targets on every cumulative sum, one ulp either side of it, and
-    //! at the top of the distribution (u = 1 − 2⁻²⁴), through the scalar and the AVX2 pick.
+    //! at the top of the distribution (u = 1 − 2⁻²⁴), through the scalar pick (and,
+    //! in `super::avx2_step`, the AVX2 pick).
     use super::*;
     use crate::filters::gsid::walk::rng::splitmix;
 
     /// Weight vectors whose lanes 3 or 7 are 0, with cases where [`prefix8`] is not monotone.
-    fn adversarial() -> Vec<[f32; 8]> {
+    pub(crate) fn adversarial() -> Vec<[f32; 8]> {
         let mut key = 7u64;
         let mut next = || {
             key = splitmix(key);
@@ -183,7 +184,7 @@ mod tests {
     }
 
     /// Targets at every cumulative sum and one ulp either side, and at the top.
-    fn targets(c: &[f32; 8]) -> Vec<f32> {
+    pub(crate) fn targets(c: &[f32; 8]) -> Vec<f32> {
         let mut t = vec![c[7] * (1.0 - 1.0 / 16_777_216.0), c[7], 0.0];
         for &ck in c {
             t.extend([
@@ -219,53 +220,5 @@ mod tests {
         let c = prefix8(&e);
         assert_eq!(pick(&c, &e, c[7]), 1);
         assert_eq!(pick(&c, &e, f32::INFINITY), 1);
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[test]
-    fn the_avx2_pick_is_the_scalar_pick() {
-        use std::arch::x86_64::*;
-
-        use crate::filters::gsid::walk::avx2;
-        if !std::arch::is_x86_feature_detected!("avx2") {
-            return;
-        }
-        let vectors = adversarial();
-        for chunk in vectors.chunks_exact(8) {
-            let cs: Vec<[f32; 8]> = chunk.iter().map(prefix8).collect();
-            for probe in 0..targets(&cs[0]).len() {
-                let t: [f32; 8] = std::array::from_fn(|s| targets(&cs[s])[probe]);
-                // Register k holds lane k of every walk, as in the kernel.
-                // SAFETY: AVX2 is present (checked above); loads read 8 floats of local arrays.
-                let got = unsafe {
-                    let col = |m: &[[f32; 8]], k: usize| -> __m256 {
-                        let v: [f32; 8] = std::array::from_fn(|s| m[s][k]);
-                        _mm256_loadu_ps(v.as_ptr())
-                    };
-                    let l: [__m256; 8] = std::array::from_fn(|k| col(chunk, k));
-                    let c: [__m256; 8] = std::array::from_fn(|k| col(&cs, k));
-                    let k = avx2::pick_lane(&c, &l, _mm256_loadu_ps(t.as_ptr()));
-                    let missed = _mm256_cmpeq_epi32(k, _mm256_set1_epi32(8));
-                    let k = _mm256_blendv_epi8(k, avx2::most_likely8(&l), missed);
-                    let mut out = [0i32; 8];
-                    _mm256_storeu_si256(out.as_mut_ptr().cast(), k);
-                    out
-                };
-                for s in 0..8 {
-                    let k = got[s] as usize;
-                    assert!(
-                        chunk[s][k] > 0.0,
-                        "AVX2 picked lane {k} of weight 0: {:?}",
-                        chunk[s]
-                    );
-                    let want = pick(&cs[s], &chunk[s], t[s]);
-                    assert_eq!(
-                        got[s] as usize, want,
-                        "lane {s}: e {:?} target {}",
-                        chunk[s], t[s]
-                    );
-                }
-            }
-        }
     }
 }

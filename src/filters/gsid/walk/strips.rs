@@ -5,7 +5,8 @@ use std::ops::Range;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use super::band::{self, Band, BAND_ROWS};
-use super::{FeatureBuilder, WalkInput, WalkJob, WalkParams, WalkStats};
+use super::job::{FeatureBuilder, WalkJob};
+use super::params::{WalkInput, WalkParams, WalkStats};
 use crate::error::Result;
 use crate::features::Features;
 use crate::image::Image;

@@ -4,7 +4,7 @@
 
 use std::ops::Range;
 
-use super::{WalkInput, OFFSETS};
+use super::params::{WalkInput, OFFSETS};
 use crate::features::{distance_row, FeaturePlanes};
 use crate::kernels::fastmath::{exp_neg, exp_neg_row};
 use crate::kernels::simd::Kernel;

@@ -100,7 +100,7 @@ fn the_scalar_step_picks_with_the_probabilities_of_the_weights() {
 fn the_avx2_step_picks_with_the_probabilities_of_the_weights() {
     use std::arch::x86_64::*;
 
-    use super::avx2::{choose8, uniform8};
+    use super::avx2_step::{choose8, uniform8};
     use super::rng::GAMMA;
     if !std::arch::is_x86_feature_detected!("avx2") {
         return;
