@@ -7,7 +7,8 @@
 mod common;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use gsid::filters::noise::kernel as noise;
+use gsid::filters::blend::keep_weights;
+use gsid::filters::noise;
 use gsid::filters::prefilter::kernel::{self as prefilter, Kind};
 use gsid::filters::prefilter::PrefilterParams;
 use gsid::kernels::simd::Kernel;
@@ -30,7 +31,7 @@ fn bench_noise(c: &mut Criterion) {
             b.iter(|| noise::estimate_with(kernel, color, features))
         });
         group.bench_function(format!("keep_weights{name}"), |b| {
-            b.iter(|| noise::keep_weights(kernel, color, &filtered, &variance, features, 2.0, 4.0))
+            b.iter(|| keep_weights(kernel, color, &filtered, &variance, features, 2.0, 4.0))
         });
         group.bench_function(format!("prefilter variance{name}"), |b| {
             b.iter(|| prefilter::variance_with(kernel, albedo, Kind::Plain, p.keep))

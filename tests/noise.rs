@@ -9,7 +9,8 @@
 
 use std::path::Path;
 
-use gsid::filters::noise::kernel as noise;
+use gsid::filters::blend::keep_weights;
+use gsid::filters::noise;
 use gsid::render_set::Feature;
 use gsid::{io, Buffers, DenoiseOptions, Image, PipelineSpec, RenderSet};
 
@@ -260,7 +261,7 @@ fn both_kernels_give_the_same_bits() {
             color.data()[(y * w + x) * 3 + c] * (0.5 + ((x + 2 * y) % 3) as f32)
         });
         for leak in [4.0, 1e6] {
-            let keep = |k| noise::keep_weights(k, color, &filtered, &fast, features, 2.0, leak);
+            let keep = |k| keep_weights(k, color, &filtered, &fast, features, 2.0, leak);
             let (a, b) = (keep(Kernel::Scalar), keep(Kernel::detect()));
             assert_eq!(bits(&a), bits(&b), "{w}x{h}: blend weights");
             assert!(b.iter().all(|v| v.is_finite() && (0.0..=1.0).contains(v)));

@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use gsid::filters::noise::kernel as noise;
+use gsid::filters::noise;
 use gsid::render_set::RenderSet;
 use gsid::{condition, io, Image};
 

@@ -1,5 +1,6 @@
 //! The `blend` stage: never worse than the input where the input is good. Mixes a filtered image
-//! with the colour it came from, per pixel, by the Wiener weight of `crate::filters::noise::kernel::keep_weights`.
+//! with the colour it came from, per pixel, by the Wiener weight of `keep_weights` (in `weights`;
+//! the error estimate it rests on in `error_estimate`).
 //!
 //! ```toml
 //! [[stage]]
@@ -12,12 +13,16 @@
 //! leak = 4.0             # a rise beyond √leak noise σ is light leaked from a neighbour
 //! ```
 
+mod error_estimate;
+mod weights;
+
 use serde::{Deserialize, Serialize};
 
 use crate::buffers::{Buffers, COLOR};
 use crate::error::{Error, Result};
-use crate::filters::noise::kernel as noise;
 use crate::filters::stage::{parse_params, Context, Stage, StageIo};
+
+pub use weights::keep_weights;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -98,7 +103,7 @@ impl Stage for BlendStage {
             &self.params.original,
             &self.params.noise,
         )?;
-        let keep = noise::keep_weights(
+        let keep = keep_weights(
             crate::kernels::simd::Kernel::detect(),
             original,
             filtered,
@@ -116,5 +121,32 @@ impl Stage for BlendStage {
         }
         buffers.insert(self.io.output.clone(), out)?;
         Ok(0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::weights::tests::{blend_case, blend_case_keep};
+    use super::BlendParams;
+
+    #[test]
+    fn a_rise_beyond_two_sigma_is_taken_back() {
+        let (color, _, _) = blend_case();
+        let leak = BlendParams::default().leak;
+        // One pixel 3σ brighter than its input, one 3σ darker (a firefly removed).
+        let mut filtered = color.clone();
+        let (up, down) = (2 * 9 + 2, 6 * 9 + 7);
+        filtered.pixel_mut(up).fill(1.3);
+        filtered.pixel_mut(down).fill(0.7);
+        let keep = blend_case_keep(&filtered, leak);
+        // κ = λ·v / gain²: a rise of exactly 2σ would be kept whole, a larger one shrinks as 1/gain.
+        let rise = keep[up] * 0.3;
+        assert!(rise <= 0.2, "kept a rise of {rise}, above 2σ = 0.2");
+        assert!(
+            (keep[up] - 4.0 * 0.01 / 0.09).abs() < 1e-4,
+            "keep {}",
+            keep[up]
+        );
+        assert_eq!(keep[down], 1.0, "a darker pixel is a firefly removed");
     }
 }

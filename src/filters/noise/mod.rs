@@ -1,5 +1,10 @@
 //! The `noise` stage: writes the variance of every pixel's colour mean (RGB) for the stages that
-//! set their strength from it (see `crate::filters::noise::kernel`).
+//! set their strength from it (docs/ALGORITHM.md §8): estimated from the image alone
+//! (`from_image`) or taken from what the renderer measured (`measured`), both averaged over the
+//! surface-mates of `surface` by `smooth`; the tone-mapped level and per-pixel colour scales the
+//! other stages follow are in `level` and `scaling`. Every pixel's sums run in f64 in a fixed
+//! order, so the result is the same bits on any thread count. Variance is per RGB channel; it
+//! scales with the square of the exposure, so everything derived from it is exposure-invariant.
 //!
 //! ```toml
 //! [[stage]]
@@ -14,8 +19,13 @@
 //! (at coarse pyramid levels, or after another stage). `image` always estimates; `measured`
 //! requires the renderer's buffers.
 
-pub mod kernel;
+pub(crate) mod chi2;
+pub(crate) mod from_image;
+mod level;
+pub(crate) mod measured;
 pub mod scaling;
+mod smooth;
+pub(crate) mod surface;
 
 use serde::{Deserialize, Serialize};
 
@@ -24,6 +34,11 @@ use crate::error::{Error, Result};
 use crate::filters::stage::{parse_params, Context, Stage, StageIo};
 use crate::image::Image;
 use crate::render_set::NoiseInputs;
+
+pub(crate) use chi2::trimmed_chi2_mean;
+pub use from_image::{estimate, estimate_with};
+pub use level::{color_scales, tone_level};
+pub use measured::{from_halves, smooth_measured};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -72,11 +87,11 @@ impl NoiseStage {
         let features = buffers.features();
         let sized = |name: &str| buffers.get_sized(name, 3, color.dims());
         if let Some(v) = sized(NoiseInputs::VARIANCE)? {
-            return Ok(Some(kernel::smooth_measured(color, features, v)));
+            return Ok(Some(smooth_measured(color, features, v)));
         }
         let [a, b] = NoiseInputs::HALVES;
         if let (Some(a), Some(b)) = (sized(a)?, sized(b)?) {
-            return Ok(Some(kernel::from_halves(color, features, a, b)));
+            return Ok(Some(from_halves(color, features, a, b)));
         }
         Ok(None)
     }
@@ -125,7 +140,7 @@ impl Stage for NoiseStage {
                     ),
                 ))
             }
-            (None, _) => kernel::estimate(color, buffers.features()),
+            (None, _) => estimate(color, buffers.features()),
         };
         buffers.insert(self.io.output.clone(), variance)?;
         Ok(0)

@@ -1,7 +1,7 @@
 //! How a stage's σ follows the noise the `noise` stage measured: one σ per image from its noise
 //! level, and per-pixel colour scales from each pixel's own noise.
 
-use super::kernel::{color_scales, tone_level};
+use super::level::{color_scales, tone_level};
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::filters::stage::Context;
@@ -11,7 +11,7 @@ use crate::image::Image;
 const MAX_GAIN: f64 = 2.0;
 
 /// How a stage's `sigma` follows the noise: σ = sigma · (level / noise_ref)^noise_power, with
-/// level the image's typical noise after the tone curve (`crate::filters::noise::kernel::tone_level`).
+/// level the image's typical noise after the tone curve (`crate::filters::noise::tone_level`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct NoiseScaling {
     /// A variance buffer (a `noise` stage's output); none: `sigma` is used as given.
@@ -20,7 +20,7 @@ pub struct NoiseScaling {
     pub noise_ref: f32,
     /// How fast σ follows the level (2: with the variance).
     pub noise_power: f32,
-    /// How far each pixel's colour difference follows its own noise (`crate::filters::noise::kernel::color_scales`;
+    /// How far each pixel's colour difference follows its own noise (`crate::filters::noise::color_scales`;
     /// 0: one σ for the whole image).
     pub local_noise: f32,
 }
@@ -39,7 +39,7 @@ impl NoiseScaling {
         Ok(())
     }
 
-    /// Per-pixel factors of the colour feature of `color` (`crate::filters::noise::kernel::color_scales`), or none
+    /// Per-pixel factors of the colour feature of `color` (`crate::filters::noise::color_scales`), or none
     /// when `local_noise` is 0 or no `noise` buffer is named.
     pub fn color_scales(
         &self,

@@ -11,7 +11,7 @@
 
 use rayon::prelude::*;
 
-use crate::filters::noise::kernel::trimmed_chi2_mean;
+use crate::filters::noise::trimmed_chi2_mean;
 use crate::image::{par_vec, Image};
 use crate::kernels::fastmath::exp_neg_row;
 use crate::kernels::padded::{Margin, Padded};
