@@ -272,7 +272,7 @@ pub struct Recipe<'a> {
 impl<'a> Recipe<'a> {
     /// The recipe for `color` and the feature buffers `features`, weighted by `weights`, the
     /// tone-mapped colour of every pixel multiplied by its `color_scale` when given (one factor per
-    /// image pixel: colour differences in units of the local noise, `crate::filters::noise::kernel::color_scales`).
+    /// image pixel: colour differences in units of the local noise, `crate::filters::noise::color_scales`).
     pub fn new(
         color: &'a Image,
         features: &'a FeatureSet,

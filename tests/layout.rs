@@ -2,7 +2,7 @@
 //! over 700 lines, and no circle of imports between files.
 //!
 //! An import is any path a file names that leads into another file's module: `use` trees (braces
-//! expanded), paths written inline in code (`crate::filters::noise::kernel::tone_level(..)`), `super::` paths and
+//! expanded), paths written inline in code (`crate::filters::noise::tone_level(..)`), `super::` paths and
 //! paths through a child module. A `mod child;` declaration is not an import, but a parent's
 //! `pub use child::X` is, and so is a child's `super::Y`: a folder's `mod.rs` and its files must
 //! also use each other in one direction only.

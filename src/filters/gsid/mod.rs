@@ -42,7 +42,7 @@ pub struct GsidParams {
     /// σ = sigma · (level / noise_ref)^noise_power.
     pub noise_power: f32,
     /// How far each pixel's colour difference follows its own noise, besides σ following the
-    /// image's (`crate::filters::noise::kernel::color_scales`; 0: one σ for the whole image).
+    /// image's (`crate::filters::noise::color_scales`; 0: one σ for the whole image).
     pub local_noise: f32,
 }
 
