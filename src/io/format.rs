@@ -3,8 +3,11 @@
 
 use std::path::Path;
 
+use super::compression::Compression;
+use super::exr_file::Frame;
+use super::output::{PendingOutput, STDOUT};
+use super::pfm;
 use super::preview::{self, Preview};
-use super::{output::STDOUT, pfm, Compression, Frame, PendingOutput};
 use crate::error::{Error, Result};
 use crate::image::Image;
 
@@ -29,7 +32,7 @@ impl ImageFormat {
     /// folder, which fails later as one) without a known extension are EXR, as they always were;
     /// any other path without a known extension is an error.
     pub fn of_output(path: &Path) -> Result<Self> {
-        let ext = super::extension(path);
+        let ext = super::read::extension(path);
         match ext.as_str() {
             "exr" => return Ok(ImageFormat::Exr),
             "pfm" => return Ok(ImageFormat::Pfm),

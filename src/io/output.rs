@@ -11,7 +11,8 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
-use super::{exr_file, Compression, Frame};
+use super::compression::Compression;
+use super::exr_file::{self, Frame};
 use crate::error::{Error, Result};
 use crate::image::Image;
 
@@ -57,6 +58,14 @@ pub fn remove_pending_outputs() {
         };
     }
     std::mem::forget(list);
+}
+
+/// Writes an EXR (float32, zip-compressed): RGB for 3 channels, `Y` for one.
+///
+/// The data goes to a temporary file next to `path`, which is renamed over `path` only once complete.
+pub fn write_exr(path: &Path, image: &Image) -> Result<()> {
+    let pending = PendingOutput::create(path)?;
+    pending.write_exr(image, Compression::Zip)
 }
 
 /// The folder an output path lies in (`.` for a bare file name).

@@ -20,7 +20,7 @@ pub enum Preview {
 const JPEG_QUALITY: u8 = 92;
 
 /// The sRGB encoding curve (linear light to display values), the inverse of
-/// [`super::srgb_to_linear`].
+/// [`super::read::srgb_to_linear`].
 pub fn linear_to_srgb(v: f32) -> f32 {
     if v <= 0.003_130_8 {
         v * 12.92
@@ -84,7 +84,7 @@ mod tests {
     fn the_curve_inverts_the_decoding_curve() {
         for i in 0..=255 {
             let v = i as f32 / 255.0;
-            let back = linear_to_srgb(super::super::srgb_to_linear(v));
+            let back = linear_to_srgb(crate::io::read::srgb_to_linear(v));
             assert!((back - v).abs() < 1e-5, "{v}: {back}");
         }
     }

@@ -7,19 +7,21 @@
 //!
 //! Everything here is library code (parsing the axes, building and validating the settings, running,
 //! the Pareto front, the CSV, the table and the plots), so it is unit-tested; `cli.rs` only wires files.
-//! [`grid`]: axes and settings; [`run`]: timing and scores; [`pareto`]: the front; [`plot`] and
-//! [`glyphs`]: the plots.
+//! [`grid`]: axes and settings; [`run`]: timing and scores; [`row`]: one setting's results;
+//! [`pareto`]: the front; [`plot`] and [`glyphs`]: the plots.
 
 pub mod glyphs;
 pub mod grid;
 pub mod pareto;
 pub mod plot;
+pub mod row;
 pub mod run;
 
 pub use grid::{parse_axes, parse_axis, settings, short_names, Axis, Setting};
 pub use pareto::{dominates, mark_front, pareto_front};
 pub use plot::{plot_png, plot_svg, PLOT_SIZE};
-pub use run::{median, notes, run, Row};
+pub use row::Row;
+pub use run::{median, notes, run};
 
 use super::table;
 use crate::error::Result;
@@ -91,7 +93,7 @@ pub fn table(rows: &[Row]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use run::test_row as row;
+    use row::test_row as row;
 
     #[test]
     fn csv_has_key_columns_and_quotes_only_where_needed() {

@@ -1,6 +1,6 @@
 //! The Pareto front of (seconds, SSIM): the settings no other setting beats on both.
 
-use super::run::Row;
+use super::row::Row;
 
 /// Sets `pareto` on every row from its (seconds, SSIM).
 pub fn mark_front(rows: &mut [Row]) {

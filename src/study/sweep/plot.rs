@@ -7,7 +7,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::glyphs::GlyphBitmap;
-use super::run::Row;
+use super::row::Row;
 use crate::error::{Error, Result};
 
 /// DejaVu Sans (license in `assets/DejaVuSans-LICENSE.txt`), compiled in so the plots have text on any
@@ -289,7 +289,7 @@ fn place_label(p: (i32, i32), size: (i32, i32), area: Rect, taken: &[Rect]) -> R
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::study::sweep::run::test_row as row;
+    use crate::study::sweep::row::test_row as row;
 
     #[test]
     fn plots_render_linear_and_log_axes() {

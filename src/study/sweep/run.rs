@@ -2,36 +2,14 @@
 
 use std::time::Instant;
 
-use serde::Serialize;
-
 use super::grid::Setting;
 use super::pareto::mark_front;
+use super::row::Row;
 use crate::buffers::Buffers;
 use crate::error::Result;
 use crate::image::Image;
 use crate::metrics;
 use crate::options::DenoiseOptions;
-
-/// One row of the sweep table.
-#[derive(Clone, Debug, Serialize)]
-pub struct Row {
-    pub label: String,
-    pub values: Vec<String>,
-    /// Median over the repeats of the in-process `Pipeline::run` time (files excluded).
-    pub seconds: f64,
-    pub seconds_min: f64,
-    pub seconds_max: f64,
-    pub ssim: f64,
-    pub psnr: f64,
-    pub relmse: f64,
-    /// Walk steps of one run (the same on every repeat: the run is deterministic).
-    pub walk_steps: u64,
-    /// On the Pareto front of (seconds, SSIM); filled in by [`mark_front`].
-    pub pareto: bool,
-    /// What the sweep left out of this setting and the pipeline's notes from its first run.
-    #[serde(skip)]
-    pub notes: Vec<String>,
-}
 
 /// The rows' notes, each once: a note every setting shares as it is, any other followed by the
 /// settings it belongs to (so 16 settings with the same notice print one line, not 16).
@@ -114,28 +92,10 @@ pub fn run(
     Ok(rows)
 }
 
-/// A row with the given label, time, SSIM and front flag (the other fields fixed), for tests.
-#[cfg(test)]
-pub(super) fn test_row(label: &str, seconds: f64, ssim: f64, pareto: bool) -> Row {
-    Row {
-        label: label.into(),
-        values: vec![label.trim_start_matches("walks=").into()],
-        seconds,
-        seconds_min: seconds,
-        seconds_max: seconds,
-        ssim,
-        psnr: 30.0,
-        relmse: 0.01,
-        walk_steps: 100,
-        pareto,
-        notes: vec![],
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use test_row as row;
+    use crate::study::sweep::row::test_row as row;
 
     #[test]
     fn median_of_odd_and_even_counts() {

@@ -1,0 +1,250 @@
+//! Loading a render set: a folder of buffer files, one multilayer or multi-part EXR, or buffers
+//! named one by one (each a file or `file.exr:Layer`).
+
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+
+use super::exr_file::Frame;
+use super::loaded_set::{
+    both_halves, check_size, check_window, find_reference, LoadedSet, NoiseFiles,
+};
+use super::passes;
+use super::read::{ldr_note, read_framed, read_image};
+use crate::error::{Error, Result};
+use crate::image::Image;
+use crate::render_set::{Feature, NoiseInputs, RenderSet};
+
+/// Finds a buffer file `name.{exr,pfm,png,jpg}` in `dir`.
+fn find_buffer_file(dir: &Path, name: &str) -> Option<PathBuf> {
+    ["exr", "pfm", "png", "jpg", "jpeg"]
+        .iter()
+        .map(|ext| dir.join(format!("{name}.{ext}")))
+        .find(|p| p.is_file())
+}
+
+/// Whether `dir` is a render set folder (it holds a `color` file).
+pub fn is_render_set(dir: &Path) -> bool {
+    find_buffer_file(dir, "color").is_some()
+}
+
+/// Loads a render set folder: `color` is required, feature buffers are optional.
+pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
+    if !dir.is_dir() {
+        return Err(Error::file(dir, "is not a render set folder"));
+    }
+    let mut files = Vec::new();
+    let color_path = find_buffer_file(dir, "color")
+        .ok_or_else(|| Error::file(dir.join("color.exr"), "required buffer `color` not found"))?;
+    let mut notes: Vec<String> = ldr_note(&color_path).into_iter().collect();
+    // The files are independent: decode them all on all threads (colour, the largest, beside the
+    // features), then check them in order, so the first error reported is the same on every run.
+    let found: Vec<(Feature, Option<PathBuf>)> = Feature::ALL
+        .iter()
+        .map(|&f| (f, find_buffer_file(dir, f.name())))
+        .collect();
+    type Decoded = Result<(Image, Frame)>;
+    let (color, decoded): (Decoded, Vec<Option<Decoded>>) = rayon::join(
+        || read_framed(&color_path, 3, true),
+        || {
+            found
+                .par_iter()
+                .map(|(f, path)| path.as_ref().map(|p| read_framed(p, f.channels(), false)))
+                .collect()
+        },
+    );
+    let (color, frame) = color?;
+    let (w, h) = color.dims();
+    let mut set = RenderSet::new(color);
+    files.push(("color".to_string(), color_path.clone()));
+    for ((feature, path), img) in found.into_iter().zip(decoded) {
+        let (Some(path), Some(img)) = (path, img) else {
+            continue;
+        };
+        let (img, window) = img?;
+        check_size(&img, &path, (w, h), &color_path)?;
+        check_window(&window, &path, &frame, &color_path)?;
+        set = set.with(feature, img)?;
+        files.push((feature.name().to_string(), path));
+    }
+    let exr = |name: &str| Some(dir.join(format!("{name}.exr"))).filter(|p| p.is_file());
+    let halves = both_halves(NoiseInputs::HALVES.map(exr)).map_err(|(missing, have)| {
+        Error::file(
+            dir.join(format!("{missing}.exr")),
+            format!("not found, but {have}.exr is: the two half-sample colours come together"),
+        )
+    })?;
+    let noise = NoiseFiles {
+        variance: exr(NoiseInputs::VARIANCE),
+        halves,
+    };
+    let read_file = |_: &'static str, p: &Path| Ok((read_image(p, 3)?, p.to_path_buf(), None));
+    noise.load(&mut set, read_file, &color_path, &mut files, &mut notes)?;
+    let reference = find_reference(dir);
+    let sources = files
+        .iter()
+        .map(|(b, p)| (b.clone(), p.display().to_string()))
+        .collect();
+    Ok(LoadedSet::new(
+        dir.to_path_buf(),
+        set,
+        files,
+        sources,
+        reference,
+        notes,
+        false,
+    )
+    .with_frame(frame))
+}
+
+/// Loads a render set folder, or one multilayer or multi-part EXR file (`maps`: `buffer=layer`).
+pub fn load_input(path: &Path, maps: &[(String, String)]) -> Result<LoadedSet> {
+    if !path.is_file() {
+        if !maps.is_empty() {
+            return Err(Error::config(
+                "--map",
+                "applies to a multilayer file, not a folder",
+            ));
+        }
+        return load_render_set(path);
+    }
+    let layers = passes::Layers::read(path)?;
+    let mut picked = layers.resolve(path, maps)?.into_iter();
+    let color = picked.next().expect("colour is resolved first");
+    let frame = layers.frame(path, &color);
+    let mut sources = vec![("color".to_string(), color.source)];
+    let mut set = RenderSet::new(color.image);
+    let mut notes = Vec::new();
+    let mut files = vec![("color".to_string(), path.to_path_buf())];
+    let mut halves = [None, None];
+    for mut p in picked {
+        if let Some(k) = NoiseInputs::HALVES.iter().position(|&h| h == p.buffer) {
+            sources.push((p.buffer.to_string(), p.source));
+            files.push((p.buffer.to_string(), path.to_path_buf()));
+            halves[k] = Some(p.image);
+            continue;
+        }
+        if p.buffer == NoiseInputs::VARIANCE {
+            sources.push((p.buffer.to_string(), p.source));
+            files.push((p.buffer.to_string(), path.to_path_buf()));
+            set.noise.variance = Some(p.image);
+            continue;
+        }
+        let feature = Feature::from_name(p.buffer).expect("a feature name");
+        if feature == Feature::Normal && passes::is_unit_encoded(&p.image) {
+            passes::decode_normal(&mut p.image);
+            notes.push(format!(
+                "{}: normal {} is stored in 0..1; remapped to -1..1",
+                path.display(),
+                p.source
+            ));
+        }
+        sources.push((p.buffer.to_string(), p.source));
+        set = set.with(feature, p.image)?;
+        files.push((p.buffer.to_string(), path.to_path_buf()));
+    }
+    set.noise.halves = both_halves(halves).map_err(|(missing, _)| {
+        Error::file(
+            path,
+            format!(
+                "has one half-sample colour but no `{missing}` layer: the two come together (use --map {missing}=LAYER)"
+            ),
+        )
+    })?;
+    let mapping = LoadedSet::mapping_line(&sources);
+    notes.insert(0, format!("{}: {mapping}", path.display()));
+    let recorded = layers.recorded();
+    if !recorded.is_empty() {
+        notes.push(format!("not used: {}", recorded.join(", ")));
+    }
+    let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let reference = Some(dir.join("reference.exr")).filter(|r| r.is_file() && r != path);
+    Ok(LoadedSet::new(dir, set, files, sources, reference, notes, true).with_frame(frame))
+}
+
+/// Splits `file.exr:Layer` into the file and the layer; a path that exists is taken whole.
+fn split_layer(spec: &Path) -> (PathBuf, Option<String>) {
+    if spec.is_file() {
+        return (spec.to_path_buf(), None);
+    }
+    match spec.to_str().and_then(|s| s.rsplit_once(':')) {
+        Some((file, layer)) if Path::new(file).is_file() => (file.into(), Some(layer.to_string())),
+        _ => (spec.to_path_buf(), None),
+    }
+}
+
+/// Loads buffers named one by one (`--color`, `--albedo`, …): each a file, or `file.exr:Layer`.
+/// A plain file is read as in a folder, so the two forms give the same bits.
+pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
+    let read = |buffer: &'static str, spec: &Path| -> Result<(Image, Frame, PathBuf, String)> {
+        let channels = passes::channels_of(buffer);
+        let colour = buffer == "color";
+        match split_layer(spec) {
+            (file, None) => {
+                let (image, frame) = read_framed(&file, channels, colour)?;
+                let shown = file.display().to_string();
+                Ok((image, frame, file, shown))
+            }
+            (file, Some(layer)) => {
+                let layers = passes::Layers::read(&file)?;
+                let picked = layers.layer(&file, &layer, buffer)?;
+                let frame = layers.frame(&file, &picked);
+                let shown = format!("{}:{}", file.display(), picked.source);
+                Ok((picked.image, frame, file, shown))
+            }
+        }
+    };
+    let color_spec = named
+        .iter()
+        .find(|(b, _)| *b == "color")
+        .ok_or_else(|| Error::config("--color", "is required with named inputs"))?;
+    let (color, frame, color_path, shown) = read("color", &color_spec.1)?;
+    let (w, h) = color.dims();
+    let mut sources = vec![("color".to_string(), shown)];
+    let mut set = RenderSet::new(color);
+    let mut files = vec![("color".to_string(), color_path.clone())];
+    for feature in Feature::ALL {
+        let Some((_, spec)) = named.iter().find(|(b, _)| *b == feature.name()) else {
+            continue;
+        };
+        let (img, window, file, shown) = read(feature.name(), spec)?;
+        check_size(&img, &file, (w, h), &color_path)?;
+        check_window(&window, &file, &frame, &color_path)?;
+        set = set.with(feature, img)?;
+        sources.push((feature.name().to_string(), shown));
+        files.push((feature.name().to_string(), file));
+    }
+    let spec_of = |buffer: &str| {
+        named
+            .iter()
+            .find(|(b, _)| *b == buffer)
+            .map(|(_, p)| p.clone())
+    };
+    let halves = both_halves(NoiseInputs::HALVES.map(spec_of)).map_err(|(missing, have)| {
+        Error::config(
+            format!("--{}", missing.replace('_', "-")),
+            format!(
+                "is required with --{}: the two half-sample colours come together",
+                have.replace('_', "-")
+            ),
+        )
+    })?;
+    let noise = NoiseFiles {
+        variance: spec_of(NoiseInputs::VARIANCE),
+        halves,
+    };
+    let mut notes = Vec::new();
+    let before = files.len();
+    let read_noise = |buffer: &'static str, spec: &Path| {
+        let layered = split_layer(spec).1.is_some();
+        read(buffer, spec).map(|(img, _, file, shown)| (img, file, layered.then_some(shown)))
+    };
+    noise.load(&mut set, read_noise, &color_path, &mut files, &mut notes)?;
+    for (buffer, file) in &files[before..] {
+        sources.push((buffer.clone(), file.display().to_string()));
+    }
+    notes.insert(0, LoadedSet::mapping_line(&sources));
+    notes.extend(ldr_note(&color_path));
+    let dir = color_path.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let reference = find_reference(&dir);
+    Ok(LoadedSet::new(dir, set, files, sources, reference, notes, false).with_frame(frame))
+}
