@@ -9,8 +9,7 @@ mod common;
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use gsid::filters::blend::keep_weights;
 use gsid::filters::noise;
-use gsid::filters::prefilter::kernel::{self as prefilter, Kind};
-use gsid::filters::prefilter::PrefilterParams;
+use gsid::filters::prefilter::{self, Kind, PrefilterParams};
 use gsid::kernels::simd::Kernel;
 use gsid::render_set::Feature;
 

@@ -7,8 +7,7 @@
 mod common;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use gsid::filters::regress::kernel as regress;
-use gsid::filters::regress::RegressParams;
+use gsid::filters::regress::{self, RegressParams};
 use gsid::kernels::simd::Kernel;
 use gsid::render_set::Feature;
 

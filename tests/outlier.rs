@@ -5,8 +5,7 @@ mod common;
 use std::path::Path;
 
 use common::{synthetic_set, FIXTURE};
-use gsid::filters::outlier::kernel::{self as outlier, luminance, Action, Detection, Guides, Rule};
-use gsid::filters::outlier::OutlierParams;
+use gsid::filters::outlier::{self, luminance, Action, Detection, Guides, OutlierParams, Rule};
 use gsid::pipeline::PipelineSpec;
 use gsid::{io, Buffers, DenoiseOptions, Image};
 use rand::rngs::Xoshiro256PlusPlus;

@@ -2,8 +2,7 @@
 //! albedo and normal against the clean ones, keeps a sharp edge and a checker texture when the
 //! noise is low, stays finite on hard cases, and gives the same bits on 1 and 2 threads.
 
-use gsid::filters::prefilter::kernel::{self as prefilter, Kind, Params};
-use gsid::filters::prefilter::{Estimate, PrefilterParams};
+use gsid::filters::prefilter::{self, Estimate, Kind, Params, PrefilterParams};
 use gsid::render_set::Feature;
 use gsid::{Buffers, DenoiseOptions, Image, PipelineSpec, RenderSet};
 

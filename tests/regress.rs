@@ -6,7 +6,7 @@
 mod common;
 
 use common::assert_set_refused;
-use gsid::filters::regress::kernel::{refine_with, regress_with, Inputs, Params};
+use gsid::filters::regress::{refine_with, regress_with, Inputs, Params};
 use gsid::kernels::simd::Kernel;
 use gsid::Image;
 

@@ -1,6 +1,30 @@
 //! The `outlier` stage: flags fireflies, repairs or only marks them, and always writes the mask.
+//!
+//! Firefly (outlier) detection and repair (docs/ALGORITHM.md §4), as plain kernels over `Image`s.
+//! Low-spp renders carry salt-and-pepper outliers: a few pixels whose one lucky path hit a light.
+//! They are found by comparing a pixel's luminance with its neighbourhood (the centre itself is
+//! never part of its own reference, so a firefly cannot hide by inflating the statistics), then
+//! repaired (neighbour median or energy-aware clamp) or only marked so the walks avoid them.
+//!
+//! Every rule is one-sided (only too-bright pixels are outliers) and yields, per pixel, the
+//! luminance above which it would be flagged: the `clamp` action scales a flagged pixel down to it.
+//! A pixel without neighbours (a 1×1 image) is never flagged. Deterministic: no randomness, and
+//! rows are independent, so any thread count gives the same bits.
+//!
+//! Beside this stage: `params` (rules, actions, settings, guides, the detection), `neighbourhood`
+//! (the window and its statistics), `surface` (the feature rule's same-surface bits), `detect` and
+//! `repair`.
 
-pub mod kernel;
+mod detect;
+mod neighbourhood;
+mod params;
+mod repair;
+mod surface;
+
+pub use detect::detect;
+pub use neighbourhood::{luminance, luminance_image};
+pub use params::{Action, DetectParams, Detection, Guides, Rule};
+pub use repair::repair;
 
 use serde::{Deserialize, Serialize};
 
@@ -8,7 +32,6 @@ use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::filters::stage::{parse_params, Context, Stage, StageIo};
 use crate::render_set::Feature;
-use kernel::{Action, DetectParams, Guides, Rule};
 
 /// Parameters of the `outlier` stage (keys of its table in a pipeline file).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -161,8 +184,8 @@ impl Stage for OutlierStage {
                 self.id
             ));
         }
-        let detection = kernel::detect(color, &guides, &p);
-        let repaired = kernel::repair(color, &detection, &guides, &p, self.params.action);
+        let detection = detect(color, &guides, &p);
+        let repaired = repair(color, &detection, &guides, &p, self.params.action);
         let (w, h) = color.dims();
         let mask = detection.mask_image(w, h);
         ctx.note(format!(

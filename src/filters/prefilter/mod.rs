@@ -1,6 +1,16 @@
 //! The `prefilter` stage: takes the noise out of feature buffers before they guide anything, and
-//! writes them back under their own names, so every later stage sees the filtered ones (see
-//! `crate::filters::prefilter::kernel`).
+//! writes them back under their own names, so every later stage sees the filtered ones.
+//!
+//! Feature prefiltering (docs/ALGORITHM.md §8, "Noisy features"): at a few samples per pixel the
+//! albedo and normal buffers are averages of a few samples too, noisy where a pixel's samples see
+//! different surfaces (glossy and glass paths, depth of field, sub-pixel texture), and every stage
+//! uses them as guides. No renderer we read writes their variance, so it is estimated from the
+//! buffer itself (`estimate`), and an NL-means filter whose patch distance counts in units of that
+//! variance (Rousselle et al. 2012, as NFOR prefilters its features; `nl_means`) smooths the noise
+//! away where there is some and leaves a clean pixel, a sharp edge or a texture alone.
+//!
+//! Every pixel's sums run in f64 in a fixed order, so the result is the same bits on any thread
+//! count.
 //!
 //! ```toml
 //! [[stage]]
@@ -14,7 +24,15 @@
 //! ```
 //! A listed feature the render set does not have is skipped with a note.
 
-pub mod kernel;
+mod estimate;
+mod nl_means;
+mod params;
+
+pub use estimate::{
+    directional_variance, directional_with, line_aware_variance, variance, variance_with,
+};
+pub use nl_means::{filter, filter_with, MAX_PATCH, MAX_RADIUS};
+pub use params::{Kind, Params};
 
 use serde::{Deserialize, Serialize};
 
@@ -22,7 +40,6 @@ use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::filters::stage::{parse_params, Context, Stage, StageIo};
 use crate::render_set::Feature;
-use kernel::{Kind, Params};
 
 /// Parameters of the `prefilter` stage (keys of its table in a pipeline file).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -47,14 +64,14 @@ pub struct PrefilterParams {
     pub keep: f64,
 }
 
-/// How a feature buffer's noise is read (`crate::filters::prefilter::kernel`).
+/// How a feature buffer's noise is read.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Estimate {
-    /// [`kernel::line_aware_variance`]: the larger of the trimmed reading and the one along
+    /// [`line_aware_variance`]: the larger of the trimmed reading and the one along
     /// the direction the buffer varies least.
     Directional,
-    /// [`kernel::variance`] with `keep`.
+    /// [`variance`] with `keep`.
     Trimmed,
 }
 
@@ -96,13 +113,13 @@ impl PrefilterParams {
                 "above 0, at most 10",
             ));
         }
-        if !(1..=kernel::MAX_RADIUS).contains(&self.radius) {
+        if !(1..=MAX_RADIUS).contains(&self.radius) {
             return Err(Error::range("radius", self.radius, "1 to 8"));
         }
         if !(0.05..=0.95).contains(&self.keep) {
             return Err(Error::range("keep", self.keep, "0.05 to 0.95"));
         }
-        if self.patch > kernel::MAX_PATCH {
+        if self.patch > MAX_PATCH {
             return Err(Error::range("patch", self.patch, "0 to 3"));
         }
         Ok(())
@@ -172,10 +189,10 @@ impl Stage for PrefilterStage {
                 Feature::Albedo | Feature::Material | Feature::Shadow => Kind::Plain,
             };
             let variance = match self.params.estimate {
-                Estimate::Directional => kernel::line_aware_variance(img, kind, p.keep),
-                Estimate::Trimmed => kernel::variance(img, kind, p.keep),
+                Estimate::Directional => line_aware_variance(img, kind, p.keep),
+                Estimate::Trimmed => variance(img, kind, p.keep),
             };
-            let filtered = kernel::filter(img, &variance, kind, &p);
+            let filtered = filter(img, &variance, kind, &p);
             buffers.insert(feature.name(), filtered)?;
         }
         Ok(0)

@@ -1,5 +1,25 @@
 //! The `regress` stage: a first-order fit of the noisy colour around every pixel, guided by a
-//! filtered image, mixed into that image where it is biased (see `crate::filters::regress::kernel`).
+//! filtered image, mixed into that image where it is biased (docs/ALGORITHM.md §9).
+//!
+//! Why: every other filter in gsid averages (a zero-order fit). Where a pixel's neighbours on its
+//! own surface lie on one side only — along every geometric edge and into every corner — and the
+//! light changes across them (a corner darkens, a wall brightens towards the light), the average
+//! is biased towards the inside of the surface, in a band a few pixels wide. A weighted
+//! least-squares fit of colour = β₀ + β₁·dx + β₂·dy over the pixel's window extrapolates instead,
+//! and its intercept β₀ has no first-order bias. Its weights choose the neighbours: the filtered
+//! image's colour difference measured in units of the noise, the albedo and the normal.
+//!
+//! The fit is less smooth than the filter it refines, and its variance is known exactly from its
+//! weights. So the output is the filtered value f moved towards the fit g by the Wiener weight
+//! κ = b²/(b² + s²): s² the fit's variance, b² the filter's squared bias, read as |g − f|² less
+//! s² (see [`keep`]). Where f is right, κ ≈ 0 and nothing changes.
+//!
+//! Deterministic: each pixel's sums run in one fixed order (f32 along a window row, f64 across
+//! rows), so the result is the same bits on any thread count and with either kernel.
+//!
+//! Beside this stage: `params` (what the fit reads and gives), `planes` (a band's inputs as padded
+//! planes), `window_sums` (the tap loop), `solve` (the normal equations), `fit` (the bands of rows)
+//! and `shrink` (the mix).
 //!
 //! ```toml
 //! [[stage]]
@@ -16,7 +36,17 @@
 //! demodulate = true
 //! ```
 
-pub mod kernel;
+mod fit;
+mod params;
+mod planes;
+mod shrink;
+mod solve;
+mod window_sums;
+
+pub use fit::regress_with;
+pub use params::{Fit, Inputs, Params, DEMODULATION_EPS, MAX_RADIUS};
+pub use shrink::{keep, mix, refine, refine_with};
+pub use window_sums::falloff;
 
 use serde::{Deserialize, Serialize};
 
@@ -24,7 +54,6 @@ use crate::buffers::{Buffers, COLOR};
 use crate::error::{Error, Result};
 use crate::filters::stage::{parse_params, Context, Stage, StageIo};
 use crate::render_set::Feature;
-use kernel::{Inputs, Params, MAX_RADIUS};
 
 /// Parameters of the `regress` stage (keys of its table in a pipeline file).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -161,7 +190,7 @@ impl Stage for RegressStage {
         if self.params.demodulate && albedo.is_none() {
             ctx.note(format!("{}: no albedo buffer; not demodulating", self.id));
         }
-        let out = kernel::refine(
+        let out = refine(
             Inputs {
                 noisy,
                 filtered,

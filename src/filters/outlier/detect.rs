@@ -1,0 +1,191 @@
+//! Detection: per pixel, the luminance above which its rule flags it, from its neighbourhood
+//! without itself, and the flags.
+
+use rayon::prelude::*;
+
+use super::neighbourhood::{luminance_image, median, quantile, window};
+use super::params::{DetectParams, Detection, Guides, Rule};
+use super::surface::{surface_bits, BITS_RADIUS};
+use crate::image::Image;
+
+/// log luminance is taken of max(L, this): black pixels would otherwise be −∞.
+const LOG_EPS: f32 = 1e-4;
+/// 0.6745 = Φ⁻¹(0.75): scales the MAD to a standard deviation for Gaussian data.
+const MAD_SCALE: f32 = 0.6745;
+
+/// Flags outliers of a 3-channel linear colour image.
+pub fn detect(color: &Image, guides: &Guides, params: &DetectParams) -> Detection {
+    let (w, h) = color.dims();
+    let n = w * h;
+    let lum = luminance_image(color);
+    let mut limit = vec![f32::INFINITY; n];
+    if n == 0 {
+        return Detection {
+            mask: Vec::new(),
+            limit,
+        };
+    }
+    let key: Vec<f32> = match params.rule {
+        Rule::Zscore => lum.par_iter().map(|&l| l.max(LOG_EPS).ln()).collect(),
+        Rule::Feature => lum.par_iter().map(|&l| l / (1.0 + l)).collect(),
+        Rule::Percentile => lum.clone(),
+    };
+    let p = *params;
+    // With each window bit's pixel offset, so a neighbour's index costs no division.
+    let surface = (p.rule == Rule::Feature && guides.any() && p.radius <= BITS_RADIUS).then(|| {
+        (
+            surface_bits(guides, &p, w, h),
+            crate::kernels::window_bits::offsets(w, p.radius),
+        )
+    });
+    let surface = surface
+        .as_ref()
+        .map(|(bits, offsets)| (bits.as_slice(), offsets.as_slice()));
+    limit.par_chunks_mut(w).enumerate().for_each_init(
+        Vec::new,
+        |scratch: &mut Vec<f32>, (y, row)| {
+            for (x, lim) in row.iter_mut().enumerate() {
+                *lim = pixel_limit(&key, guides, surface, &p, x, y, w, h, scratch);
+            }
+        },
+    );
+    let mask = lum.par_iter().zip(&limit).map(|(&l, &t)| l > t).collect();
+    Detection { mask, limit }
+}
+
+/// The luminance above which pixel (x, y) is an outlier under `p.rule`; +∞ if it cannot be one.
+#[allow(clippy::too_many_arguments)]
+fn pixel_limit(
+    key: &[f32],
+    guides: &Guides,
+    surface: Option<(&[u64], &[isize])>,
+    p: &DetectParams,
+    x: usize,
+    y: usize,
+    w: usize,
+    h: usize,
+    scratch: &mut Vec<f32>,
+) -> f32 {
+    let i = y * w + x;
+    scratch.clear();
+    match p.rule {
+        Rule::Zscore => {
+            scratch.extend(window(x, y, p.radius, w, h).map(|j| key[j]));
+            if scratch.is_empty() {
+                return f32::INFINITY;
+            }
+            let med = median(scratch);
+            for v in scratch.iter_mut() {
+                *v = (*v - med).abs();
+            }
+            let mad = median(scratch).max(p.mad_floor);
+            let log_limit = med + p.threshold * mad / MAD_SCALE;
+            let l = log_limit.exp();
+            if l.is_finite() {
+                l
+            } else {
+                f32::INFINITY
+            }
+        }
+        Rule::Percentile => {
+            scratch.extend(window(x, y, p.radius, w, h).map(|j| key[j]));
+            if scratch.is_empty() {
+                return f32::INFINITY;
+            }
+            let q75 = quantile(scratch, 0.75).max(LOG_EPS);
+            let l = p.threshold * q75;
+            if l.is_finite() {
+                l
+            } else {
+                f32::INFINITY
+            }
+        }
+        Rule::Feature => {
+            if let Some((bits, offsets)) = surface {
+                // The same neighbours in the same (raster) order as the test below.
+                let mut m = bits[i];
+                while m != 0 {
+                    let b = m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    scratch.push(key[(i as isize + offsets[b]) as usize]);
+                }
+            } else if guides.any() {
+                scratch.extend(window(x, y, p.radius, w, h).filter_map(|j| {
+                    let (da, dn) = guides.distances(i, j);
+                    (da <= p.albedo_tol && dn <= p.normal_tol).then_some(key[j])
+                }));
+            }
+            // Too few neighbours on the same surface to estimate a spread: test against all.
+            if scratch.len() < 2 {
+                scratch.clear();
+                scratch.extend(window(x, y, p.radius, w, h).map(|j| key[j]));
+            }
+            if scratch.is_empty() {
+                return f32::INFINITY;
+            }
+            // Leave the brightest neighbour out when enough remain: two adjacent fireflies
+            // would otherwise inflate each other's std and both pass.
+            if scratch.len() >= 4 {
+                let (k, _) = scratch
+                    .iter()
+                    .enumerate()
+                    .max_by(|a, b| a.1.total_cmp(b.1))
+                    .expect("not empty");
+                scratch.swap_remove(k);
+            }
+            let m = scratch.len() as f64;
+            let mean = scratch.iter().map(|&v| v as f64).sum::<f64>() / m;
+            let var = scratch
+                .iter()
+                .map(|&v| (v as f64 - mean).powi(2))
+                .sum::<f64>()
+                / m;
+            let t = mean + p.threshold as f64 * var.sqrt().max(p.std_floor as f64);
+            if t < 1.0 {
+                (t / (1.0 - t)) as f32
+            } else {
+                f32::INFINITY
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::filters::outlier::params::fixtures::{params, RULES};
+
+    #[test]
+    fn a_lone_firefly_is_flagged_by_every_rule_and_nothing_else() {
+        let mut img = Image::filled(9, 7, 3, 0.3);
+        img.pixel_mut(4 * 9 + 4)
+            .copy_from_slice(&[50.0, 40.0, 30.0]);
+        for rule in RULES {
+            let d = detect(&img, &Guides::default(), &params(rule));
+            assert_eq!(d.count(), 1, "{rule:?}");
+            assert!(d.mask[4 * 9 + 4], "{rule:?}");
+        }
+    }
+
+    #[test]
+    fn feature_rule_gates_on_albedo() {
+        // A bright surface strip next to a dark one is not an outlier; a firefly on the dark one is.
+        let (w, h) = (7, 7);
+        let img = Image::from_fn(w, h, 3, |x, y, _| match (x, y) {
+            (5, 5) => 20.0,
+            (3, _) => 20.0,
+            _ => 0.1,
+        });
+        let albedo = Image::from_fn(w, h, 3, |x, _, _| if x == 3 { 0.9 } else { 0.1 });
+        let guides = Guides {
+            albedo: Some(&albedo),
+            normal: None,
+        };
+        let p = params(Rule::Feature);
+        let d = detect(&img, &guides, &p);
+        assert!(d.mask[5 * w + 5]);
+        // Strip ends at the border have one same-surface neighbour, too few: they fall back to all.
+        assert!((1..h - 1).all(|y| !d.mask[y * w + 3]));
+        assert_eq!(d.count(), 3);
+    }
+}
