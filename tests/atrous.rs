@@ -5,7 +5,7 @@ mod common;
 
 use common::{assert_set_refused, default_features, synthetic_set};
 use gsid::features::{FeaturePlanes, Features, Recipe, Tone, Weights};
-use gsid::filters::atrous::kernel::pass_with;
+use gsid::filters::atrous::pass::pass_with;
 use gsid::kernels::simd::Kernel;
 use gsid::{Buffers, DenoiseOptions, Image};
 
@@ -98,7 +98,7 @@ fn textbook_pass(
     step: usize,
     sigma: f32,
 ) -> Image {
-    use gsid::filters::atrous::kernel::TAPS;
+    use gsid::filters::atrous::pass::TAPS;
     let (w, h) = color.dims();
     let inv = 1.0 / (2.0 * sigma * sigma);
     let keep = |i: usize| if mask.is_some_and(|m| m[i]) { 0.0 } else { 1.0 };

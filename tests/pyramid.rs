@@ -71,10 +71,11 @@ fn per_level_overrides_are_checked() {
     assert!(bad.build().err().unwrap().to_string().contains("levles"));
 }
 
-/// `gsid::filters::pyramid::kernel`'s REDUCE, EXPAND and two-level linear blend: the perturbed-pyramid test's only
+/// `gsid::filters::pyramid`'s REDUCE, EXPAND and two-level linear blend: the perturbed-pyramid test's only
 /// calls into the module, so a renamed API is adapted here.
 mod levels {
-    use gsid::filters::pyramid::kernel::{blend, expand, reduce, BlendDomain};
+    use gsid::filters::pyramid::blend::{blend, BlendDomain};
+    use gsid::filters::pyramid::levels::{expand, reduce};
     use gsid::Image;
 
     pub fn reduce_of(img: &Image) -> Image {

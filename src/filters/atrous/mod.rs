@@ -1,7 +1,7 @@
-//! The `atrous` stage: edge-avoiding à-trous passes with GSID's difference (see `crate::filters::atrous::kernel`),
+//! The `atrous` stage: edge-avoiding à-trous passes with GSID's difference (see `crate::filters::atrous::pass`),
 //! to take the residual speckle out of a GSID result.
 
-pub mod kernel;
+pub mod pass;
 
 use serde::{Deserialize, Serialize};
 
@@ -202,7 +202,7 @@ impl Stage for AtrousStage {
                 scales.as_deref(),
             )?;
             let bands = |rows, pad| recipe.planes(rows, pad);
-            color = kernel::pass(&color, &bands, mask.as_deref(), 1 << k, sigma);
+            color = pass::pass(&color, &bands, mask.as_deref(), 1 << k, sigma);
         }
         if let Some(a) = albedo {
             for (c, &a) in color.data_mut().iter_mut().zip(a.data()) {

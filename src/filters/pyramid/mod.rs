@@ -17,7 +17,8 @@
 //! `--set pyramid.levels=4`, `--set pyramid.gsid.walks=10` and `--set pyramid.level2.gsid.sigma=2`
 //! all address these keys.
 
-pub mod kernel;
+pub mod blend;
+pub mod levels;
 
 use serde::{Deserialize, Serialize};
 
@@ -25,7 +26,7 @@ use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::filters::stage::{parse_params, Context, Stage, StageBuilder, StageIo};
 use crate::spec::StageSpec;
-use kernel::BlendDomain;
+use blend::BlendDomain;
 
 /// The pyramid's own parameters (its sub-stages and their overrides are parts of its [`StageSpec`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -194,7 +195,7 @@ impl Stage for PyramidStage {
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
         let (w, h) = buffers.require(&self.io.input)?.dims();
         let wanted = self.params.levels as usize;
-        let n = kernel::allowed_levels(w, h, wanted);
+        let n = levels::allowed_levels(w, h, wanted);
         if n < wanted {
             ctx.note(format!(
                 "{}: a {w}x{h} image allows {n} of the {wanted} levels asked for",
@@ -212,7 +213,7 @@ impl Stage for PyramidStage {
         let mut coarse: Vec<Buffers> = Vec::with_capacity(n.saturating_sub(1));
         for l in 1..n {
             let finer = if l == 1 { &*buffers } else { &coarse[l - 2] };
-            let next = kernel::reduce_buffers(finer, &self.io.input, mask)?;
+            let next = levels::reduce_buffers(finer, &self.io.input, mask)?;
             coarse.push(next);
         }
         let out_name = self.level_output();
@@ -240,7 +241,7 @@ impl Stage for PyramidStage {
         }
         denoised.reverse();
         ctx.level = saved_level;
-        let out = kernel::blend(
+        let out = blend::blend(
             denoised,
             &self.params.blend,
             self.params.domain,

@@ -1,197 +1,14 @@
-//! Gaussian/Laplacian pyramids and Laplacian blending (docs/ALGORITHM.md §4).
-//!
-//! REDUCE is a sum-1 Gaussian (σ = 1 source pixel, close to the 5-tap binomial) followed by halving
-//! (odd sizes round up); EXPAND interpolates back to a stored size with the same Gaussian in coarse
-//! pixels. Both are convolution resamplings by `fast_image_resize` with a custom filter, which
-//! renormalises the kernel at borders, so energy is kept there too. Blending uses the very same REDUCE
-//! and EXPAND for building and collapsing, so an untouched pyramid reconstructs its input up to float
-//! rounding whatever the filters are.
+//! Laplacian blending of the filtered levels back into one image, in the linear or the log
+//! domain, each coarse level expanded under the guide of the finer one (docs/ALGORITHM.md §4). It
+//! uses the very same REDUCE and EXPAND as the levels for building and collapsing, so an untouched
+//! pyramid reconstructs its input up to float rounding whatever the filters are.
 
-use fast_image_resize as fr;
 use rayon::prelude::*;
 
-use crate::buffers::Buffers;
+use super::levels::{expand, gaussian, reduce};
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::kernels::fastmath::exp_neg;
-use crate::render_set::Feature;
-
-/// Levels stop before either side would drop below this many pixels.
-pub const MIN_LEVEL_SIZE: usize = 4;
-
-/// The Gaussian used by REDUCE and EXPAND, in destination pixels when downscaling (σ = 0.5 there is
-/// σ = 1 source pixel) and in source pixels when upscaling.
-fn gaussian(x: f64) -> f64 {
-    (-2.0 * x * x).exp()
-}
-
-fn filter() -> fr::FilterType {
-    // Support 1.5 = 3σ; the constructor only fails for a non-positive support.
-    fr::FilterType::Custom(
-        fr::Filter::new("gaussian-0.5", gaussian, 1.5).expect("positive support"),
-    )
-}
-
-fn pixel_type(channels: usize) -> Result<fr::PixelType> {
-    match channels {
-        1 => Ok(fr::PixelType::F32),
-        2 => Ok(fr::PixelType::F32x2),
-        3 => Ok(fr::PixelType::F32x3),
-        4 => Ok(fr::PixelType::F32x4),
-        c => Err(Error::Usage(format!("cannot resample a {c}-channel image"))),
-    }
-}
-
-/// Resamples `img` to `w × h` with the pyramid Gaussian.
-pub fn resample(img: &Image, w: usize, h: usize) -> Result<Image> {
-    if img.dims() == (w, h) {
-        return Ok(img.clone());
-    }
-    let pt = pixel_type(img.channels())?;
-    let src = fr::images::ImageRef::new(
-        img.width() as u32,
-        img.height() as u32,
-        bytemuck::cast_slice(img.data()),
-        pt,
-    )
-    .map_err(|e| Error::Runtime(format!("resample: {e}")))?;
-    let mut dst = fr::images::Image::new(w as u32, h as u32, pt);
-    let options = fr::ResizeOptions::new().resize_alg(fr::ResizeAlg::Convolution(filter()));
-    fr::Resizer::new()
-        .resize(&src, &mut dst, &options)
-        .map_err(|e| Error::Runtime(format!("resample: {e}")))?;
-    let data: Vec<f32> = bytemuck::cast_slice(dst.buffer()).to_vec();
-    Image::from_vec(w, h, img.channels(), data)
-}
-
-/// Size of the next coarser level.
-pub fn half(w: usize, h: usize) -> (usize, usize) {
-    (w.div_ceil(2), h.div_ceil(2))
-}
-
-/// REDUCE: blur and halve.
-pub fn reduce(img: &Image) -> Result<Image> {
-    let (w, h) = half(img.width(), img.height());
-    resample(img, w, h)
-}
-
-/// EXPAND: interpolate up to the stored finer size.
-pub fn expand(img: &Image, w: usize, h: usize) -> Result<Image> {
-    resample(img, w, h)
-}
-
-/// How many levels an image of `w × h` allows, up to `wanted`.
-pub fn allowed_levels(w: usize, h: usize, wanted: usize) -> usize {
-    let (mut w, mut h) = (w, h);
-    let mut levels = 1;
-    while levels < wanted {
-        let (nw, nh) = half(w, h);
-        if nw < MIN_LEVEL_SIZE || nh < MIN_LEVEL_SIZE {
-            break;
-        }
-        (w, h) = (nw, nh);
-        levels += 1;
-    }
-    levels
-}
-
-/// Depth REDUCE: the nearest surface of each 2×2 block, so no phantom depths between surfaces appear.
-pub fn reduce_min(img: &Image) -> Image {
-    let (w, h) = img.dims();
-    let (nw, nh) = half(w, h);
-    let c = img.channels();
-    Image::from_fn(nw, nh, c, |x, y, ch| {
-        let mut m = f32::INFINITY;
-        for yy in 2 * y..(2 * y + 2).min(h) {
-            for xx in 2 * x..(2 * x + 2).min(w) {
-                m = m.min(img.at(xx, yy)[ch]);
-            }
-        }
-        m
-    })
-}
-
-/// Scales every non-zero 3-vector back to unit length (zero stays "unknown").
-pub fn renormalize(img: &mut Image) {
-    for n in img.data_mut().chunks_exact_mut(3) {
-        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-        if len > 1e-6 {
-            n.iter_mut().for_each(|v| *v /= len);
-        } else {
-            n.fill(0.0);
-        }
-    }
-}
-
-/// REDUCE of colour that ignores masked pixels (normalised convolution), so a masked firefly does not
-/// spread into coarse levels. Returns the colour and the coarse mask (set where no valid pixel fed it).
-pub fn reduce_masked(color: &Image, mask: &Image) -> Result<(Image, Image)> {
-    let (w, h) = color.dims();
-    let valid = Image::from_fn(
-        w,
-        h,
-        1,
-        |x, y, _| if mask.at(x, y)[0] > 0.5 { 0.0 } else { 1.0 },
-    );
-    let weighted = Image::from_fn(w, h, 3, |x, y, c| color.at(x, y)[c] * valid.at(x, y)[0]);
-    let (nw, nh) = half(w, h);
-    let num = resample(&weighted, nw, nh)?;
-    let den = resample(&valid, nw, nh)?;
-    let plain = resample(color, nw, nh)?;
-    let mut out = Image::new(nw, nh, 3);
-    let mut coarse_mask = Image::new(nw, nh, 1);
-    for i in 0..nw * nh {
-        let d = den.pixel(i)[0];
-        if d > 1e-3 {
-            for c in 0..3 {
-                out.pixel_mut(i)[c] = (num.pixel(i)[c] / d).max(0.0);
-            }
-        } else {
-            out.pixel_mut(i).copy_from_slice(plain.pixel(i));
-            coarse_mask.pixel_mut(i)[0] = 1.0;
-        }
-    }
-    Ok((out, coarse_mask))
-}
-
-/// The next coarser level of every buffer: colour-like buffers by REDUCE, normals renormalised,
-/// depth by nearest surface, the colour `input` masked by `mask` when one is given.
-pub fn reduce_buffers(buffers: &Buffers, input: &str, mask: Option<&str>) -> Result<Buffers> {
-    let masked = match (mask, buffers.get(input)) {
-        (Some(m), Some(color)) => match buffers.get(m) {
-            Some(mask_img) => Some(reduce_masked(color, mask_img)?),
-            None => None,
-        },
-        _ => None,
-    };
-    let mut out = Buffers::new();
-    for (name, img) in buffers.iter() {
-        let reduced = match &masked {
-            Some((color, _)) if name == input => color.clone(),
-            Some((_, m)) if Some(name) == mask => m.clone(),
-            _ => match Feature::from_name(name) {
-                Some(feature) => reduce_feature(feature, img)?,
-                None => reduce(img)?,
-            },
-        };
-        out.insert(name, reduced)?;
-    }
-    Ok(out)
-}
-
-/// REDUCE of one feature buffer: depth by nearest surface (no phantom depths between two
-/// surfaces), normals renormalised, the rest as colour.
-pub fn reduce_feature(feature: Feature, img: &Image) -> Result<Image> {
-    Ok(match feature {
-        Feature::Depth => reduce_min(img),
-        Feature::Normal => {
-            let mut n = reduce(img)?;
-            renormalize(&mut n);
-            n
-        }
-        Feature::Albedo | Feature::Material | Feature::Shadow => reduce(img)?,
-    })
-}
 
 /// Where the bands of Laplacian blending are formed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -463,12 +280,8 @@ pub fn blend(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn ramp(w: usize, h: usize) -> Image {
-        Image::from_fn(w, h, 3, |x, y, c| {
-            ((x * 13 + y * 7 + c * 5) % 17) as f32 / 4.0 + 0.01
-        })
-    }
+    use crate::filters::pyramid::levels::allowed_levels;
+    use crate::filters::pyramid::levels::tests::ramp;
 
     #[test]
     fn the_neighbourhood_clamp_is_the_windows_min_and_max() {
@@ -508,16 +321,6 @@ mod tests {
     }
 
     #[test]
-    fn reduce_keeps_the_mean() {
-        let img = ramp(40, 30);
-        let small = reduce(&img).unwrap();
-        assert_eq!(small.dims(), (20, 15));
-        for (a, b) in img.channel_means().iter().zip(small.channel_means()) {
-            assert!((a - b).abs() < 0.02 * a, "{a} vs {b}");
-        }
-    }
-
-    #[test]
     fn untouched_pyramid_reconstructs_its_input() {
         for (w, h, levels) in [(37, 23, 4), (1, 1, 3), (64, 64, 5), (5, 9, 3)] {
             let img = ramp(w, h);
@@ -545,29 +348,5 @@ mod tests {
                 );
             }
         }
-    }
-
-    #[test]
-    fn depth_reduce_picks_the_nearest_surface() {
-        let d = Image::from_vec(3, 1, 1, vec![5.0, 1.0, 9.0]).unwrap();
-        assert_eq!(reduce_min(&d).data(), &[1.0, 9.0]);
-    }
-
-    #[test]
-    fn masked_reduce_ignores_fireflies() {
-        let mut color = Image::filled(8, 8, 3, 0.5);
-        color.pixel_mut(27).copy_from_slice(&[1e6; 3]);
-        let mut mask = Image::new(8, 8, 1);
-        mask.pixel_mut(27)[0] = 1.0;
-        let (small, coarse_mask) = reduce_masked(&color, &mask).unwrap();
-        assert!(small.data().iter().all(|&v| (v - 0.5).abs() < 1e-5));
-        assert!(coarse_mask.data().iter().all(|&v| v == 0.0));
-    }
-
-    #[test]
-    fn level_count_is_clipped_for_small_images() {
-        assert_eq!(allowed_levels(1, 1, 4), 1);
-        assert_eq!(allowed_levels(37, 23, 4), 3);
-        assert_eq!(allowed_levels(128, 128, 4), 4);
     }
 }
