@@ -305,3 +305,34 @@ fn eval_scores_the_colour_pass_of_multilayer_files() {
     let ssim = report["ssim"].as_f64().unwrap();
     assert!((ssim - 0.882).abs() < 5e-4, "SSIM {ssim}");
 }
+
+/// A multilayer file given for one buffer (`--color FILE`, `--albedo FILE`) gives that buffer's
+/// layer by the pass table, as the positional form does: the same output bytes. It read the first
+/// R, G, B that sorts, Blender's `AO`, for every buffer.
+#[test]
+fn a_multilayer_file_named_per_buffer_reads_each_buffers_own_layer() {
+    let tmp = tempfile::tempdir().unwrap();
+    let whole = denoise(&[CYCLES], &tmp.path().join("whole.exr"));
+    let named = denoise(
+        &[
+            "--color", CYCLES, "--albedo", CYCLES, "--normal", CYCLES, "--depth", CYCLES,
+        ],
+        &tmp.path().join("named.exr"),
+    );
+    assert!(
+        whole == named,
+        "named buffers read other layers than the file's table"
+    );
+    // A file with no layer for a buffer is named, with the layers it has.
+    let run = gsid(&[
+        "denoise",
+        "--color",
+        CYCLES,
+        "--shadow",
+        CYCLES,
+        "-o",
+        tmp.path().join("x.exr").to_str().unwrap(),
+    ]);
+    assert_bad_input(&run, "shadow");
+    assert!(stderr(&run).contains("layers found"), "{}", stderr(&run));
+}

@@ -199,7 +199,8 @@ fn same_bits_on_any_thread_count() {
 }
 
 fn gsid() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_gsid"))
+    let bin = std::env::var_os("GSID_BIN").unwrap_or_else(|| env!("CARGO_BIN_EXE_gsid").into());
+    Command::new(bin)
 }
 
 #[test]
@@ -404,4 +405,69 @@ scale = 2
         left < right && top < bottom,
         "{left} {right} {top} {bottom}"
     );
+}
+
+/// `render -o` replaces only a folder it wrote (it holds the marker `.gsid-render-set`) or an empty
+/// one: a folder of the user's is refused with everything in it kept (it was deleted, exit 0), and
+/// so is the working folder (`-o .` failed late and left temporary folders behind).
+#[test]
+fn render_replaces_only_a_folder_it_wrote() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene_file = tmp.path().join("small.toml");
+    let small = FURNACE
+        .replace("width = 32", "width = 8")
+        .replace("height = 32", "height = 4");
+    std::fs::write(&scene_file, small).unwrap();
+    let render = |out: &Path, cwd: &Path| {
+        gsid()
+            .current_dir(cwd)
+            .args(["render", "-q", "--spp", "1", "--reference-spp", "0", "-o"])
+            .arg(out)
+            .arg(&scene_file)
+            .output()
+            .unwrap()
+    };
+    let mine = tmp.path().join("myrenders");
+    std::fs::create_dir_all(mine.join("keepme")).unwrap();
+    std::fs::write(mine.join("notes.txt"), "mine").unwrap();
+    std::fs::write(mine.join("keepme/a.txt"), "mine too").unwrap();
+    let out = render(&mine, tmp.path());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("myrenders") && err.lines().count() == 1,
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(mine.join("notes.txt")).unwrap(),
+        "mine"
+    );
+    assert!(mine.join("keepme/a.txt").is_file());
+    // A set it wrote, or an empty folder, is replaced.
+    let set = tmp.path().join("set");
+    std::fs::create_dir(&set).unwrap();
+    for _ in 0..2 {
+        let out = render(&set, tmp.path());
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(set.join("spp1/color.exr").is_file() && set.join(".gsid-render-set").is_file());
+    }
+    // The working folder, even one it wrote.
+    let out = render(Path::new("."), &set);
+    assert_eq!(
+        out.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let litter: Vec<_> = std::fs::read_dir(tmp.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(".gsid-"))
+        .collect();
+    assert!(litter.is_empty(), "{litter:?}");
+    assert!(set.join("spp1/color.exr").is_file());
 }

@@ -4,7 +4,7 @@
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
-use super::exr_file::Frame;
+use super::exr_file::{self, Frame};
 use super::loaded_set::{
     both_halves, check_size, check_window, find_reference, LoadedSet, NoiseFiles,
 };
@@ -44,11 +44,14 @@ pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
         .collect();
     type Decoded = Result<(Image, Frame)>;
     let (color, decoded): (Decoded, Vec<Option<Decoded>>) = rayon::join(
-        || read_framed(&color_path, 3, true),
+        || read_buffer(&color_path, "color", true).map(|(i, f, _)| (i, f)),
         || {
             found
                 .par_iter()
-                .map(|(f, path)| path.as_ref().map(|p| read_framed(p, f.channels(), false)))
+                .map(|(f, path)| {
+                    path.as_ref()
+                        .map(|p| read_buffer(p, f.name(), false).map(|(i, f, _)| (i, f)))
+                })
                 .collect()
         },
     );
@@ -172,16 +175,33 @@ fn split_layer(spec: &Path) -> (PathBuf, Option<String>) {
     }
 }
 
+/// Reads `buffer` from a file given for it alone (`--albedo FILE`, a folder's `albedo.exr`). From a
+/// multilayer EXR that is the layer the pass table names for the buffer, as when the file is the
+/// input (a Blender file's `Combined` for the colour, never `AO`, which sorts first); any other file
+/// is read as it is. Returns the image, what an output keeps of the file, and its source as shown.
+fn read_buffer(file: &Path, buffer: &'static str, alpha: bool) -> Result<(Image, Frame, String)> {
+    let exr = file
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+    if exr && file.is_file() && exr_file::is_multilayer(file)? {
+        let layers = passes::Layers::read(file)?;
+        let picked = layers.for_buffer(file, buffer)?;
+        let frame = layers.frame(file, &picked);
+        let shown = format!("{}:{}", file.display(), picked.source);
+        return Ok((picked.image, frame, shown));
+    }
+    let (image, frame) = read_framed(file, passes::channels_of(buffer), alpha)?;
+    Ok((image, frame, file.display().to_string()))
+}
+
 /// Loads buffers named one by one (`--color`, `--albedo`, …): each a file, or `file.exr:Layer`.
 /// A plain file is read as in a folder, so the two forms give the same bits.
 pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
     let read = |buffer: &'static str, spec: &Path| -> Result<(Image, Frame, PathBuf, String)> {
-        let channels = passes::channels_of(buffer);
         let colour = buffer == "color";
         match split_layer(spec) {
             (file, None) => {
-                let (image, frame) = read_framed(&file, channels, colour)?;
-                let shown = file.display().to_string();
+                let (image, frame, shown) = read_buffer(&file, buffer, colour)?;
                 Ok((image, frame, file, shown))
             }
             (file, Some(layer)) => {

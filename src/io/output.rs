@@ -265,12 +265,42 @@ pub struct PendingFolder {
 }
 
 impl PendingFolder {
-    pub fn create(path: &Path) -> Result<Self> {
+    /// Reserves `path` for a folder that will hold the file `marker`, which marks what this kind
+    /// of output wrote. A folder already at `path` is replaced only when it is empty or holds
+    /// `marker` (an earlier output of the same kind): any other folder is the user's, and never
+    /// deleted. The working folder, or one holding it, cannot be renamed away.
+    pub fn create(path: &Path, marker: &str) -> Result<Self> {
         if path.exists() && !path.is_dir() {
             return Err(Error::output(path, "exists and is not a folder"));
         }
+        if path.is_dir() {
+            let cwd = std::env::current_dir()
+                .ok()
+                .and_then(|d| d.canonicalize().ok());
+            let full = path.canonicalize().map_err(|e| Error::output(path, e))?;
+            if cwd.is_some_and(|cwd| cwd.starts_with(&full)) {
+                return Err(Error::output(
+                    path,
+                    "is the working folder or holds it; it cannot be replaced (write elsewhere)",
+                ));
+            }
+            let mut entries = std::fs::read_dir(path).map_err(|e| Error::output(path, e))?;
+            if entries.next().is_some() && !path.join(marker).is_file() {
+                return Err(Error::output(
+                    path,
+                    format!(
+                        "exists and is not a folder gsid wrote (no {marker} in it); refusing to replace it: remove it or choose another path"
+                    ),
+                ));
+            }
+        }
         let tmp = temp_beside(path, |b, dir| b.tempdir_in(dir))?;
         let listed = Registered::new(tmp.path());
+        std::fs::write(
+            tmp.path().join(marker),
+            "This folder was written by gsid; gsid may replace it.\n",
+        )
+        .map_err(|e| Error::write(path, e))?;
         Ok(PendingFolder {
             path: path.to_path_buf(),
             tmp: Some(tmp),

@@ -245,51 +245,92 @@ impl Layers {
     /// required and must be unambiguous; a feature matched by two layers is an error too.
     pub fn resolve(&self, path: &Path, maps: &[(String, String)]) -> Result<Vec<Picked>> {
         let mut out = Vec::new();
-        for (buffer, names) in PASSES {
-            let channels = channels_of(buffer);
+        for (buffer, _) in PASSES {
             if let Some((_, name)) = maps.iter().find(|(b, _)| b == buffer) {
                 out.push(self.layer(path, name, buffer)?);
                 continue;
             }
-            let Some(matches) = names.iter().find_map(|n| {
-                let m: Vec<usize> = (0..self.layers.len())
-                    .filter(|&l| {
-                        let l = &self.layers[l];
-                        l.pass().eq_ignore_ascii_case(n) && l.pick(channels).is_some()
-                    })
-                    .collect();
-                (!m.is_empty()).then_some(m)
-            }) else {
-                if buffer == "color" {
+            match self.by_table(path, buffer)? {
+                Some(picked) => out.push(picked),
+                None if buffer == "color" => {
                     return Err(Error::file(
                         path,
                         format!(
                             "has no known colour layer (use --map color=LAYER); {}",
                             self.found()
                         ),
-                    ));
+                    ))
                 }
-                continue;
-            };
-            if matches.len() > 1 {
-                return Err(Error::file(
-                    path,
-                    format!(
-                        "{buffer} is ambiguous (use --map {buffer}=LAYER); {}",
-                        self.found()
-                    ),
-                ));
+                None => {}
             }
-            let layer = &self.layers[matches[0]];
-            let image = self.image(layer, channels).expect("picked channels");
-            out.push(Picked {
-                buffer,
-                image,
-                source: Self::source(layer, channels),
-                layer: matches[0],
-            });
         }
         Ok(out)
+    }
+
+    /// The layer the table names for `buffer` (its most preferred pass name that some layer with
+    /// the buffer's channels carries), if any; two such layers are an error.
+    pub fn by_table(&self, path: &Path, buffer: &'static str) -> Result<Option<Picked>> {
+        let channels = channels_of(buffer);
+        let names = PASSES
+            .iter()
+            .find(|(b, _)| *b == buffer)
+            .map_or(&[][..], |(_, names)| *names);
+        let Some(matches) = names.iter().find_map(|n| {
+            let m: Vec<usize> = (0..self.layers.len())
+                .filter(|&l| {
+                    let l = &self.layers[l];
+                    l.pass().eq_ignore_ascii_case(n) && l.pick(channels).is_some()
+                })
+                .collect();
+            (!m.is_empty()).then_some(m)
+        }) else {
+            return Ok(None);
+        };
+        if matches.len() > 1 {
+            return Err(Error::file(
+                path,
+                format!(
+                    "{buffer} is ambiguous (use --map {buffer}=LAYER); {}",
+                    self.found()
+                ),
+            ));
+        }
+        let layer = &self.layers[matches[0]];
+        let image = self.image(layer, channels).expect("picked channels");
+        Ok(Some(Picked {
+            buffer,
+            image,
+            source: Self::source(layer, channels),
+            layer: matches[0],
+        }))
+    }
+
+    /// A file given for `buffer` alone: the layer the table names for it, else the file's
+    /// unprefixed channels; an error naming the layers found when neither exists.
+    pub fn for_buffer(&self, path: &Path, buffer: &'static str) -> Result<Picked> {
+        if let Some(picked) = self.by_table(path, buffer)? {
+            return Ok(picked);
+        }
+        let channels = channels_of(buffer);
+        match self.layers.iter().position(|l| l.name.is_empty()) {
+            Some(plain) if self.layers[plain].pick(channels).is_some() => {
+                let layer = &self.layers[plain];
+                Ok(Picked {
+                    buffer,
+                    image: self.image(layer, channels).expect("picked channels"),
+                    source: Self::source(layer, channels),
+                    layer: plain,
+                })
+            }
+            _ => Err(Error::file(
+                path,
+                format!(
+                    "has no layer that is `{buffer}` by its name; name one as {}:LAYER; {}",
+                    path.display(),
+                    self.found()
+                ),
+            )),
+        }
     }
 
     /// Layers recognised as passes gsid does not load (feature variances), for a note.

@@ -51,6 +51,9 @@ pub struct RenderArgs {
     pub all_effects: bool,
 }
 
+/// The file that marks a folder `gsid render` wrote: only such a folder is replaced by a new render.
+pub const RENDER_SET_MARKER: &str = ".gsid-render-set";
+
 /// Seed of the render at `spp` samples (`reference` apart): different for every sample count.
 pub fn seed_for(scene_seed: u64, spp: u32, reference: bool) -> u64 {
     integrator::mix(scene_seed ^ integrator::mix(((reference as u64) << 32) | spp as u64))
@@ -83,7 +86,7 @@ pub fn run(args: &RenderArgs, quiet: bool) -> Result<()> {
         );
     }
     // Built under a temporary name and renamed into place: never half a render set.
-    let folder = PendingFolder::create(&args.output)?;
+    let folder = PendingFolder::create(&args.output, RENDER_SET_MARKER)?;
     let dir = folder.staging();
     output::write_scene(dir, &text)?;
     let mut jobs: Vec<(u32, bool)> = args.spp.iter().map(|&n| (n, false)).collect();

@@ -303,6 +303,21 @@ fn pick_channels(
     }
 }
 
+/// Whether the file holds named layers (a channel name with a dot, `ViewLayer.Combined.R`) or
+/// several parts, from its headers alone: then which channels are a buffer is the pass table's
+/// choice, not the first R, G, B that sorts first.
+pub fn is_multilayer(path: &Path) -> Result<bool> {
+    let meta = exr::meta::MetaData::read_from_file(path, false)
+        .map_err(|e| Error::file(path, format!("not a readable EXR file ({e})")))?;
+    let named = |h: &exr::meta::header::Header| {
+        h.channels
+            .list
+            .iter()
+            .any(|c| c.name.to_string().contains('.'))
+    };
+    Ok(meta.headers.len() > 1 || meta.headers.iter().any(named))
+}
+
 /// How many channels the file's first part holds, from its header alone.
 pub fn channel_count(path: &Path) -> Result<usize> {
     let meta = exr::meta::MetaData::read_from_file(path, false)
