@@ -419,3 +419,73 @@ fn a_pipeline_name_is_never_a_file_in_the_working_folder() {
     let ids: Vec<&str> = builtin.stages.iter().map(|s| s.id()).collect();
     assert_eq!(json["pipeline"]["stages"], serde_json::json!(ids), "{json}");
 }
+
+/// A buffer file that is there but cannot be read (a link to nothing, a folder, a FIFO, a device)
+/// is an error naming it: it was taken for a missing buffer ("missing buffers: albedo"), and a colour
+/// so broken got "not found".
+#[test]
+fn a_buffer_that_exists_but_cannot_be_read_is_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    type Make = fn(&Path);
+    let kinds: [(&str, Make); 4] = [
+        ("link to nothing", |p| {
+            std::os::unix::fs::symlink("/nonexistent/gsid", p).unwrap()
+        }),
+        ("folder", |p| std::fs::create_dir(p).unwrap()),
+        ("fifo", |p| {
+            let c = std::ffi::CString::new(p.to_str().unwrap()).unwrap();
+            // SAFETY: mkfifo reads a valid NUL-terminated path.
+            assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o644) }, 0);
+        }),
+        ("device", |p| {
+            std::os::unix::fs::symlink("/dev/zero", p).unwrap()
+        }),
+    ];
+    for (k, (what, make)) in kinds.iter().enumerate() {
+        for buffer in ["albedo", "color"] {
+            let set = tmp.path().join(format!("set{k}{buffer}"));
+            write_set(&set, &synthetic_set(8, 6));
+            std::fs::remove_file(set.join(format!("{buffer}.exr"))).unwrap();
+            make(&set.join(format!("{buffer}.exr")));
+            let out = tmp.path().join(format!("out{k}{buffer}.exr"));
+            let run = denoise(&set, &out);
+            assert_bad_input(&run, &format!("{buffer}.exr"));
+            assert!(!out.exists(), "{what} {buffer}");
+        }
+    }
+}
+
+/// `eval` refuses what it cannot score: a reference with no finite non-negative value (it was
+/// scored as black without a word) and an image with a NaN pixel (SSIM 0.9999, relMSE NaN).
+/// A reference with a few bad pixels is scored, with a line saying how many became 0.
+#[test]
+fn eval_refuses_what_it_cannot_score() {
+    let tmp = tempfile::tempdir().unwrap();
+    let file = |name: &str, img: &gsid::Image| {
+        let p = tmp.path().join(name);
+        io::write_exr(&p, img).unwrap();
+        p.to_str().unwrap().to_string()
+    };
+    let good = gsid::Image::from_fn(16, 12, 3, |x, y, c| 0.1 + ((x + y + c) % 7) as f32 * 0.1);
+    let good_path = file("good.exr", &good);
+    for (name, value) in [("nan", f32::NAN), ("inf", f32::INFINITY), ("neg", -1.0)] {
+        let bad = file(
+            &format!("{name}.exr"),
+            &gsid::Image::filled(16, 12, 3, value),
+        );
+        let run = gsid(&["eval", &good_path, "--reference", &bad]);
+        assert_bad_input(&run, &bad);
+    }
+    let mut one_nan = good.clone();
+    one_nan.pixel_mut(5)[1] = f32::NAN;
+    let one_nan = file("one_nan.exr", &one_nan);
+    let run = gsid(&["eval", &one_nan, "--reference", &good_path]);
+    assert_bad_input(&run, &one_nan);
+    let run = gsid(&["eval", &good_path, "--reference", &one_nan]);
+    assert_eq!(run.status.code(), Some(0), "{}", stderr(&run));
+    assert!(
+        stderr(&run).contains("1 NaN, infinite or negative values scored as 0"),
+        "{}",
+        stderr(&run)
+    );
+}

@@ -257,3 +257,30 @@ fn hard_cases_cover_every_named_pipeline() {
     covered.sort_unstable();
     assert_eq!(covered, named);
 }
+
+/// Outputs are finite and non-negative wherever the input colour was, on the inputs where they
+/// were not: `full` on the Mitsuba box at 1 spp (24 negative pixels, down to −0.012: the
+/// first-order fit extrapolated below 0), a variance buffer of 1e38 (hundreds, every preset), and
+/// half the colour NaN (`fast`).
+#[test]
+fn outputs_are_finite_and_non_negative_on_the_reported_inputs() {
+    let set = gsid::io::load_render_set(std::path::Path::new("fixtures/mitsuba-cornell/spp1"))
+        .unwrap()
+        .set;
+    let (w, h) = set.color.dims();
+    for p in PIPELINES {
+        let out = run(p, &[], &mut Buffers::from(set.clone()));
+        assert_finite(&out, &format!("{p}, Mitsuba box 1 spp"));
+        let mut b = Buffers::from(set.clone());
+        b.insert("variance", Image::filled(w, h, 3, 1e38)).unwrap();
+        let out = run(p, &[], &mut b);
+        assert_finite(&out, &format!("{p}, variance 1e38"));
+        let mut b = Buffers::from(set.clone());
+        let c = b.get_mut("color").unwrap();
+        for i in (0..w * h).step_by(2) {
+            c.pixel_mut(i).copy_from_slice(&[f32::NAN; 3]);
+        }
+        let out = run(p, &[], &mut b);
+        assert_finite(&out, &format!("{p}, half the colour NaN"));
+    }
+}

@@ -269,6 +269,7 @@ fn render_builds_its_set_aside_and_replaces_an_old_one_whole() {
     assert_eq!(
         files_in(&dest),
         vec![
+            ".gsid-render-set",
             "reference.exr",
             "sample_variance.exr",
             "scene.toml",
@@ -282,7 +283,13 @@ fn render_builds_its_set_aside_and_replaces_an_old_one_whole() {
     assert!(second.status.success(), "{}", stderr(&second));
     assert_eq!(
         files_in(&dest),
-        vec!["reference.exr", "sample_variance.exr", "scene.toml", "spp4"]
+        vec![
+            ".gsid-render-set",
+            "reference.exr",
+            "sample_variance.exr",
+            "scene.toml",
+            "spp4"
+        ]
     );
     assert_eq!(
         files_in(tmp.path()),

@@ -92,7 +92,7 @@ fn run(cli: Cli) -> crate::error::Result<()> {
     match cli.command {
         Command::Denoise(args) => denoise::denoise(&args, cli.quiet),
         Command::Render(args) => crate::render::run(&args, cli.quiet),
-        Command::Eval(args) => studies::eval(&args),
+        Command::Eval(args) => studies::eval(&args, cli.quiet),
         Command::Ablate(args) => studies::ablate(&args, cli.quiet),
         Command::Sweep(args) => studies::sweep(&args, cli.quiet),
         Command::Pipelines => studies::list_pipelines(),

@@ -157,10 +157,31 @@ fn sweep_into(
     )
 }
 
-pub(super) fn eval(args: &EvalArgs) -> Result<()> {
+pub(super) fn eval(args: &EvalArgs, quiet: bool) -> Result<()> {
     let image = io::read_color(&args.image)?;
     let mut reference = io::read_color(&args.reference)?;
-    sanitize_reference(&mut reference);
+    // A score of non-finite pixels means nothing: SSIM passes over them, relMSE turns NaN.
+    let bad = image.data().iter().filter(|v| !v.is_finite()).count();
+    if bad > 0 {
+        return Err(Error::file(
+            &args.image,
+            format!("has {bad} NaN or infinite values; it cannot be scored"),
+        ));
+    }
+    let fixed = sanitize_reference(&mut reference);
+    let fixed = fixed.color_nonfinite + fixed.color_negative;
+    if fixed > 0 && fixed == reference.data().len() {
+        return Err(Error::file(
+            &args.reference,
+            "has no finite, non-negative value (NaN, infinite or negative everywhere); it cannot be a reference",
+        ));
+    }
+    if fixed > 0 && !quiet {
+        crate::progress::say(&format!(
+            "gsid: {}: {fixed} NaN, infinite or negative values scored as 0",
+            args.reference.display()
+        ));
+    }
     if image.dims() != reference.dims() {
         return Err(Error::file(
             &args.image,

@@ -14,17 +14,38 @@ use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::render_set::{Feature, NoiseInputs, RenderSet};
 
-/// Finds a buffer file `name.{exr,pfm,png,jpg}` in `dir`.
-fn find_buffer_file(dir: &Path, name: &str) -> Option<PathBuf> {
-    ["exr", "pfm", "png", "jpg", "jpeg"]
-        .iter()
-        .map(|ext| dir.join(format!("{name}.{ext}")))
-        .find(|p| p.is_file())
+/// The buffer file `name.{exr,pfm,png,jpg}` in `dir`, if one is there. Something by that name
+/// that is not a readable file (a dangling link, a folder, a FIFO or a device) is an error naming
+/// it, never taken for a missing buffer.
+fn find_buffer_file(dir: &Path, name: &str) -> Result<Option<PathBuf>> {
+    for ext in ["exr", "pfm", "png", "jpg", "jpeg"] {
+        let path = dir.join(format!("{name}.{ext}"));
+        if let Some(path) = present(&path)? {
+            return Ok(Some(path));
+        }
+    }
+    Ok(None)
 }
 
-/// Whether `dir` is a render set folder (it holds a `color` file).
+/// `path` if it is a regular file (through links), `None` if nothing is there, an error naming
+/// what is there instead.
+pub(super) fn present(path: &Path) -> Result<Option<PathBuf>> {
+    let Ok(entry) = std::fs::symlink_metadata(path) else {
+        return Ok(None);
+    };
+    let what = match std::fs::metadata(path) {
+        Ok(m) if m.is_file() => return Ok(Some(path.to_path_buf())),
+        Ok(m) if m.is_dir() => "a folder",
+        Ok(_) => "not a regular file (a FIFO, socket or device)",
+        Err(_) if entry.file_type().is_symlink() => "a link to nothing",
+        Err(_) => "not readable",
+    };
+    Err(Error::file(path, format!("is {what}, not an image file")))
+}
+
+/// Whether `dir` is a render set folder (it holds a `color` file, or something by that name).
 pub fn is_render_set(dir: &Path) -> bool {
-    find_buffer_file(dir, "color").is_some()
+    find_buffer_file(dir, "color").map_or(true, |c| c.is_some())
 }
 
 /// Loads a render set folder: `color` is required, feature buffers are optional.
@@ -33,15 +54,15 @@ pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
         return Err(Error::file(dir, "is not a render set folder"));
     }
     let mut files = Vec::new();
-    let color_path = find_buffer_file(dir, "color")
+    let color_path = find_buffer_file(dir, "color")?
         .ok_or_else(|| Error::file(dir.join("color.exr"), "required buffer `color` not found"))?;
     let mut notes: Vec<String> = ldr_note(&color_path).into_iter().collect();
     // The files are independent: decode them all on all threads (colour, the largest, beside the
     // features), then check them in order, so the first error reported is the same on every run.
     let found: Vec<(Feature, Option<PathBuf>)> = Feature::ALL
         .iter()
-        .map(|&f| (f, find_buffer_file(dir, f.name())))
-        .collect();
+        .map(|&f| Ok((f, find_buffer_file(dir, f.name())?)))
+        .collect::<Result<_>>()?;
     type Decoded = Result<(Image, Frame)>;
     let (color, decoded): (Decoded, Vec<Option<Decoded>>) = rayon::join(
         || read_buffer(&color_path, "color", true).map(|(i, f, _)| (i, f)),
@@ -69,15 +90,16 @@ pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
         set = set.with(feature, img)?;
         files.push((feature.name().to_string(), path));
     }
-    let exr = |name: &str| Some(dir.join(format!("{name}.exr"))).filter(|p| p.is_file());
-    let halves = both_halves(NoiseInputs::HALVES.map(exr)).map_err(|(missing, have)| {
+    let exr = |name: &str| present(&dir.join(format!("{name}.exr")));
+    let [a, b] = NoiseInputs::HALVES.map(exr);
+    let halves = both_halves([a?, b?]).map_err(|(missing, have)| {
         Error::file(
             dir.join(format!("{missing}.exr")),
             format!("not found, but {have}.exr is: the two half-sample colours come together"),
         )
     })?;
     let noise = NoiseFiles {
-        variance: exr(NoiseInputs::VARIANCE),
+        variance: exr(NoiseInputs::VARIANCE)?,
         halves,
     };
     let read_file = |_: &'static str, p: &Path| Ok((read_image(p, 3)?, p.to_path_buf(), None));

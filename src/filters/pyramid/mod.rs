@@ -109,13 +109,6 @@ impl PyramidStage {
         let id = spec.id.as_str();
         let params: PyramidParams = parse_params(id, spec.params.clone())?;
         params.validate().map_err(|e| e.in_context(id))?;
-        if spec.children.is_empty() {
-            // It would run nothing at any level and blend the levels of the input back into itself.
-            return Err(Error::config(
-                format!("{id}.stages"),
-                "a pyramid needs at least one sub-stage ([[stage.stages]]) to run at every level",
-            ));
-        }
         let names_child = |k: &String| spec.children.iter().any(|c| &c.id == k);
         if let Some(bad) = spec.overrides.every_level.keys().find(|k| !names_child(k)) {
             return Err(Error::config(
@@ -194,6 +187,14 @@ impl Stage for PyramidStage {
 
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
         let (w, h) = buffers.require(&self.io.input)?.dims();
+        if self.levels.iter().all(Vec::is_empty) {
+            // Allowed (it checks that splitting and blending give the input back), but never
+            // what a user means: say so rather than pass it silently.
+            ctx.note(format!(
+                "{}: no sub-stages ([[stage.stages]]): the levels are only split and put back together",
+                self.id
+            ));
+        }
         let wanted = self.params.levels as usize;
         let n = levels::allowed_levels(w, h, wanted);
         if n < wanted {

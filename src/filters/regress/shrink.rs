@@ -46,8 +46,9 @@ pub fn keep(filtered: &[f32], fit: &[f32], fit_variance: f32) -> f32 {
     }
 }
 
-/// The filtered image moved towards the fit by each pixel's [`keep`] weight. A filtered value
-/// that is not finite is replaced by the fit (which always is).
+/// The filtered image moved towards the fit (clamped at 0) by each pixel's [`keep`] weight, so a
+/// non-negative filtered image stays non-negative. A filtered value that is not finite is
+/// replaced by the fit (which always is).
 pub fn mix(filtered: &Image, fit: &Fit) -> Image {
     let mut out = filtered.par_clone();
     out.data_mut()
@@ -55,11 +56,14 @@ pub fn mix(filtered: &Image, fit: &Fit) -> Image {
         .zip(fit.color.data().par_chunks(3))
         .zip(fit.variance.par_iter())
         .for_each(|((px, g), &s2)| {
+            // Radiance is not negative: a plane fitted across an edge or into a dark corner can
+            // extrapolate below 0, and the mix must not follow it there.
+            let g = [g[0].max(0.0), g[1].max(0.0), g[2].max(0.0)];
             if !px.iter().all(|v| v.is_finite()) {
-                px.copy_from_slice(g);
+                px.copy_from_slice(&g);
                 return;
             }
-            let k = keep(px, g, s2);
+            let k = keep(px, &g, s2);
             for c in 0..3 {
                 let v = px[c] + k * (g[c] - px[c]);
                 if v.is_finite() {
