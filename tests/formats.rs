@@ -281,8 +281,13 @@ fn a_damaged_pfm_input_is_one_line_naming_the_file() {
     let color = set.join("color.pfm");
     let good = io::pfm::encode(&Image::filled(4, 4, 3, 0.5)).unwrap();
     let out = tmp.path().join("out.exr");
-    let cases: [(Vec<u8>, &str); 4] = [
+    let cases: [(Vec<u8>, &str); 5] = [
         (good[..good.len() - 1].to_vec(), "truncated"),
+        // Control bytes in a header field are shown escaped, never echoed raw onto the terminal.
+        (
+            b"PF\nfo\0ur\x1b[2J 4\n-1.0\n".to_vec(),
+            "width `fo\\0ur\\u{1b}[2J`",
+        ),
         (
             [b"PX".as_slice(), &good[2..]].concat(),
             "does not start with PF",
@@ -295,6 +300,7 @@ fn a_damaged_pfm_input_is_one_line_naming_the_file() {
         let run = gsid(&["denoise", s(&set), "-o", s(&out)]);
         assert_bad_input(&run, "color.pfm");
         assert!(stderr(&run).contains(why), "{}", stderr(&run));
+        assert!(!stderr(&run).contains(['\0', '\x1b']), "{:?}", stderr(&run));
         assert!(!out.exists());
     }
 }

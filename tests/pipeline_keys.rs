@@ -116,3 +116,30 @@ fn stage_count_and_nesting_are_bounded() {
         assert!(err.to_string().contains("nest deeper"), "{depth}: {err}");
     }
 }
+
+/// A noise stage's `reuse` naming a buffer no earlier stage wrote says so (it was accepted silently
+/// and measured again).
+#[test]
+fn reuse_of_a_buffer_nobody_wrote_says_so() {
+    let mut spec = PipelineSpec::builtin("full").unwrap();
+    spec.apply_set("pyramid.level_noise.reuse=\"nonexistent\"")
+        .unwrap();
+    let pipeline = spec.build().unwrap();
+    let color = Image::from_fn(16, 12, 3, |x, y, c| {
+        0.1 + ((x + 2 * y + c) % 5) as f32 * 0.1
+    });
+    let (_, report) = pipeline
+        .run(
+            &mut RenderSet::new(color).into(),
+            &DenoiseOptions::default(),
+        )
+        .unwrap();
+    assert!(
+        report
+            .notes
+            .iter()
+            .any(|n| n.contains("`reuse` names buffer `nonexistent`")),
+        "{:?}",
+        report.notes
+    );
+}

@@ -342,6 +342,17 @@ fn scene_errors_name_the_key_and_exit_with_2() {
         ("ior = 1.5", "ior = 0.5", "materials.glass.ior"),
         ("scale = 0.7", "scale = [0.7, 0.2, 0.7]", "shapes[0].scale"),
         ("fov = 45", "fov = 45\nzoom = 2", "zoom"),
+        // A non-finite placement dropped the shape without a word.
+        (
+            "translate = [-0.6, 0, 0]",
+            "translate = [nan, 0, 0]",
+            "shapes[0].translate",
+        ),
+        (
+            "rotate = [10, 30, 0]",
+            "rotate = [10, inf, 0]",
+            "shapes[1].rotate",
+        ),
         (
             "material = \"white\"",
             "material = \"whit\"",

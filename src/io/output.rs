@@ -199,8 +199,12 @@ impl PendingOutput {
             }
         };
         written.map_err(|e| match (&self.target, e.kind()) {
-            // The reader took what it wanted (`gsid denoise … -o - | head -c 4`): end quietly.
-            (Target::Stdout, std::io::ErrorKind::BrokenPipe) => Error::StdoutClosed,
+            // An image the reader did not take whole is lost: a failure, not a quiet end (a
+            // listing piped into `head` is another matter: see the CLI's `stdout`).
+            (Target::Stdout, std::io::ErrorKind::BrokenPipe) => Error::write(
+                "standard output",
+                "closed by its reader before the whole image was written",
+            ),
             _ => Error::write(&self.path, e),
         })?;
         self.commit()

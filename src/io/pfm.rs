@@ -73,7 +73,8 @@ fn parse_header(bytes: &[u8]) -> std::result::Result<Header, String> {
         match text.parse::<u64>() {
             Ok(n) if n > 0 && text.bytes().all(|b| b.is_ascii_digit()) => Ok(n),
             _ => Err(format!(
-                "its {what} `{text}` is not a positive whole number"
+                "its {what} `{}` is not a positive whole number",
+                text.escape_debug()
             )),
         }
     };
@@ -84,7 +85,8 @@ fn parse_header(bytes: &[u8]) -> std::result::Result<Header, String> {
         Ok(s) if s.is_finite() && s != 0.0 => s,
         _ => {
             return Err(format!(
-                "its scale `{scale_text}` is not a non-zero number (its sign gives the byte order)"
+                "its scale `{}` is not a non-zero number (its sign gives the byte order)",
+                scale_text.escape_debug()
             ))
         }
     };

@@ -632,6 +632,16 @@ fn shape_matrix(s: &ShapeSpec, key: &str) -> Result<Mat4> {
         }
         return Ok(Mat4(m));
     }
+    // A NaN or infinite placement would make the shape miss every ray without a word.
+    let parts = [("translate", s.translate), ("rotate", s.rotate)];
+    for (name, value) in parts {
+        if value.is_some_and(|v| v.iter().any(|x| !x.is_finite())) {
+            return Err(Error::config(
+                format!("{key}.{name}"),
+                "must be finite numbers",
+            ));
+        }
+    }
     let mut m = Mat4::translate(s.translate.unwrap_or([0.0; 3]));
     if let Some(r) = s.rotate {
         m = m
@@ -644,6 +654,12 @@ fn shape_matrix(s: &ShapeSpec, key: &str) -> Result<Mat4> {
         Some(Scale::Uniform(v)) => [v; 3],
         Some(Scale::Axes(v)) => v,
     };
+    if scale.iter().any(|x| !x.is_finite()) {
+        return Err(Error::config(
+            format!("{key}.scale"),
+            "must be finite numbers",
+        ));
+    }
     Ok(m.mul(&Mat4::scale(scale)))
 }
 

@@ -113,11 +113,17 @@ impl Stage for NoiseStage {
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
         let color = buffers.require_channels(&self.io.input, 3)?;
         if let Some(done) = self.params.reuse.as_deref().filter(|_| ctx.level == 0) {
-            if let Some(v) = buffers.get_channels(done, 3)? {
-                if v.dims() == color.dims() {
+            match buffers.get_channels(done, 3)? {
+                Some(v) if v.dims() == color.dims() => {
                     buffers.insert_same(self.io.output.clone(), done)?;
                     return Ok(0);
                 }
+                Some(_) => {}
+                // A misspelt name, or an ablation that removed the stage writing it: say so.
+                None => ctx.note(format!(
+                    "{}: `reuse` names buffer `{done}`, which no earlier stage wrote; measuring instead",
+                    self.id
+                )),
             }
         }
         let own_colour = self.io.input == COLOR && ctx.level == 0;
