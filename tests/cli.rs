@@ -489,3 +489,34 @@ fn eval_refuses_what_it_cannot_score() {
         stderr(&run)
     );
 }
+
+/// An input whose standard attribute has a mistyped type (a bit flip: `pixelAspectRatio` of type
+/// `flost`) cannot be carried to the output: that is named as the input's fault before any work,
+/// exit 2 (it ran the whole pipeline, then failed to write with exit 1).
+#[test]
+fn an_input_header_that_cannot_be_written_back_is_refused_before_the_work() {
+    let tmp = tempfile::tempdir().unwrap();
+    let bytes = std::fs::read("fixtures/cornell/spp4/color.exr").unwrap();
+    let flipped: &[u8] = b"pixelAspectRatio\0flost\0";
+    let at = bytes
+        .windows(flipped.len())
+        .position(|w| w == b"pixelAspectRatio\0float\0")
+        .expect("the fixture has a pixel aspect ratio");
+    let mut mutant = bytes.clone();
+    mutant[at..at + flipped.len()].copy_from_slice(flipped);
+    let color = tmp.path().join("mutant.exr");
+    std::fs::write(&color, mutant).unwrap();
+    let out = tmp.path().join("o.exr");
+    let run = gsid(&[
+        "denoise",
+        "--color",
+        color.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "-p",
+        "fast",
+    ]);
+    assert_bad_input(&run, "mutant.exr");
+    assert!(stderr(&run).contains("pixelAspectRatio"), "{}", stderr(&run));
+    assert!(!out.exists());
+}

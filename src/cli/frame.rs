@@ -117,6 +117,15 @@ fn denoise_frame(
         half: args.half,
         exposure: preview_exposure(args.exposure, &outputs)?,
     };
+    let (_, color_file) = &set.files[0];
+    io::check_output(
+        &args.output,
+        set.set.dims(),
+        3,
+        &frame,
+        &encoding,
+        color_file,
+    )?;
     // Reserve every output before the work, so an unwritable path fails fast and nothing half-written remains.
     let pending = PendingOutput::create(&args.output)?;
     let pending_saves = saves

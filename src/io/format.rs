@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use super::compression::Compression;
-use super::exr_file::Frame;
+use super::exr_file::{self, Frame};
 use super::output::{PendingOutput, STDOUT};
 use super::pfm;
 use super::preview::{self, Preview};
@@ -65,6 +65,32 @@ pub struct Encoding {
     pub half: bool,
     /// Stops of exposure for previews (float outputs are written as computed).
     pub exposure: f32,
+}
+
+/// Checks, before any work, that an output at `path` of `dims` and `channels` can carry what `frame`
+/// keeps of the colour's file (`color`): a damaged input's mistyped standard attribute is named as
+/// that input's fault now, not found when the result is written.
+pub fn check_output(
+    path: &Path,
+    dims: (usize, usize),
+    channels: usize,
+    frame: &Frame,
+    encoding: &Encoding,
+    color: &Path,
+) -> Result<()> {
+    if ImageFormat::of_output(path)? != ImageFormat::Exr {
+        return Ok(());
+    }
+    let exr = exr_file::Encoding {
+        compression: encoding.compression.exr(),
+        half: encoding.half,
+    };
+    exr_file::check(dims, channels, frame, exr).map_err(|e| {
+        Error::file(
+            color,
+            format!("its header cannot be written to an output: {e}"),
+        )
+    })
 }
 
 /// Writes `image` to a reserved output in the format its path names, and commits it.

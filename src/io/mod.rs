@@ -23,7 +23,7 @@ mod read;
 
 pub use compression::Compression;
 pub use exr_file::{Frame, Plane};
-pub use format::{write_image, Encoding, ImageFormat};
+pub use format::{check_output, write_image, Encoding, ImageFormat};
 pub use load::{is_render_set, load_input, load_named, load_render_set};
 pub use loaded_set::{find_reference, LoadedSet};
 pub use output::{remove_pending_outputs, write_exr, PendingFolder, PendingOutput, STDOUT};

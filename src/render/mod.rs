@@ -12,6 +12,7 @@ pub mod material;
 pub mod math;
 pub mod output;
 pub mod scene;
+pub mod scene_file;
 pub mod shapes;
 pub mod texture;
 

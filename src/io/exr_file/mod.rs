@@ -12,4 +12,4 @@ mod write;
 
 pub use frame::{read_all_channels, Frame, Plane};
 pub use read::{channel_count, is_multilayer, read, MAX_PIXELS};
-pub use write::{write, Compression, Encoding};
+pub use write::{check, write, Compression, Encoding};

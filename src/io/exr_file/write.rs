@@ -108,6 +108,69 @@ pub struct Encoding {
     pub half: bool,
 }
 
+/// The image's channel names (`R,G,B`, `Y` for one channel, or the colour's own names when its
+/// other layers are written too) and the stored planes written beside them: the alpha of a
+/// layered colour and the other layers. A plain colour's alpha, renamed `A`, is added by the caller.
+fn channel_names(c: usize, frame: &Frame) -> (Vec<String>, Vec<&Plane>) {
+    let layered = !frame.layers.is_empty();
+    let names: Vec<String> = match c {
+        3 if layered => frame.rgb.clone(),
+        3 => ["R", "G", "B"].map(String::from).to_vec(),
+        4 => ["R", "G", "B", "A"].map(String::from).to_vec(),
+        _ => vec!["Y".to_string()],
+    };
+    let mut planes: Vec<&Plane> = Vec::new();
+    if let (3, Some(alpha), true) = (c, &frame.alpha, layered) {
+        planes.push(alpha);
+    }
+    planes.extend(&frame.layers);
+    (names, planes)
+}
+
+fn sample_type(encoding: Encoding) -> SampleType {
+    if encoding.half {
+        SampleType::F16
+    } else {
+        SampleType::F32
+    }
+}
+
+/// Checks, before any work, that the header [`write`] would give an output of `dims` and
+/// `channels` with `frame` is valid: an input whose standard attribute is mistyped (a damaged
+/// file) would otherwise fail the write after the whole run.
+pub fn check(
+    dims: (usize, usize),
+    channels: usize,
+    frame: &Frame,
+    encoding: Encoding,
+) -> exr::error::UnitResult {
+    // Never written: its samples are the zero pages calloc hands out, not touched here.
+    let image = Image::filled(dims.0, dims.1, channels, 0.0);
+    let (names, mut planes) = channel_names(channels, frame);
+    let renamed_alpha;
+    if let (3, Some(alpha)) = (channels, &frame.alpha) {
+        if frame.layers.is_empty() {
+            renamed_alpha = Plane {
+                desc: ChannelDescription {
+                    name: Text::from("A"),
+                    ..alpha.desc.clone()
+                },
+                samples: FlatSamples::F32(Vec::new()),
+            };
+            planes.insert(0, &renamed_alpha);
+        }
+    }
+    let (header, _) = header(
+        &image,
+        &names,
+        sample_type(encoding),
+        &planes,
+        frame,
+        encoding.compression,
+    );
+    exr::meta::MetaData::validate(&[header], true).map(|_| ())
+}
+
 /// Writes `image` as one scan-line layer with what `frame` keeps: its windows and attributes,
 /// its alpha beside a 3-channel image, and its other layers once read. Channels are `R,G,B`
 /// (`Y` for one channel), or the colour's own names when its other layers are written too.
@@ -118,19 +181,10 @@ pub fn write(
     encoding: Encoding,
 ) -> exr::error::UnitResult {
     let (w, c) = (image.width(), image.channels());
-    let layered = !frame.layers.is_empty();
-    let names: Vec<String> = match c {
-        3 if layered => frame.rgb.clone(),
-        3 => ["R", "G", "B"].map(String::from).to_vec(),
-        4 => ["R", "G", "B", "A"].map(String::from).to_vec(),
-        _ => vec!["Y".to_string()],
-    };
     let renamed_alpha;
-    let mut planes: Vec<&Plane> = Vec::new();
+    let (names, mut planes) = channel_names(c, frame);
     if let (3, Some(alpha)) = (c, &frame.alpha) {
-        if layered {
-            planes.push(alpha);
-        } else {
+        if frame.layers.is_empty() {
             renamed_alpha = Plane {
                 desc: ChannelDescription {
                     name: Text::from("A"),
@@ -138,19 +192,13 @@ pub fn write(
                 },
                 samples: alpha.samples.clone(),
             };
-            planes.push(&renamed_alpha);
+            planes.insert(0, &renamed_alpha);
         }
     }
-    planes.extend(&frame.layers);
-    let sample_type = if encoding.half {
-        SampleType::F16
-    } else {
-        SampleType::F32
-    };
     let (header, sources) = header(
         image,
         &names,
-        sample_type,
+        sample_type(encoding),
         &planes,
         frame,
         encoding.compression,
