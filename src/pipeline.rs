@@ -8,6 +8,7 @@ use serde::Serialize;
 use crate::buffers::{Buffers, COLOR};
 use crate::condition::{Conditioning, SanitizeReport};
 use crate::error::{Error, Result};
+use crate::filters::stage::MAX_STEPS_PER_PIXEL;
 use crate::filters::{self, Context, Stage, StageReport};
 use crate::image::Image;
 use crate::options::DenoiseOptions;
@@ -54,6 +55,15 @@ impl Pipeline {
             .iter()
             .map(|s| filters::build(s).map_err(|e| e.in_file(&spec.origin)))
             .collect::<Result<Vec<_>>>()?;
+        let steps: f64 = stages.iter().map(|s| s.steps_per_pixel()).sum();
+        if steps > MAX_STEPS_PER_PIXEL {
+            return Err(Error::config(
+                format!("{}: walks", spec.origin),
+                format!(
+                    "the pipeline's walks may take {steps:.0} steps per pixel (walks × max_steps over its gsid stages, pyramid levels counted by their size), more than the {MAX_STEPS_PER_PIXEL:.0} allowed"
+                ),
+            ));
+        }
         Ok(Pipeline {
             name: spec.name.clone(),
             description: spec.description.clone(),

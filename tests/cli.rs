@@ -517,6 +517,10 @@ fn an_input_header_that_cannot_be_written_back_is_refused_before_the_work() {
         "fast",
     ]);
     assert_bad_input(&run, "mutant.exr");
-    assert!(stderr(&run).contains("pixelAspectRatio"), "{}", stderr(&run));
+    assert!(
+        stderr(&run).contains("pixelAspectRatio"),
+        "{}",
+        stderr(&run)
+    );
     assert!(!out.exists());
 }

@@ -143,3 +143,38 @@ fn reuse_of_a_buffer_nobody_wrote_says_so() {
         report.notes
     );
 }
+
+/// The walk budget is the pipeline's: two gsid stages each within it, together beyond it, are
+/// refused, naming the figure; a pyramid's coarser levels count by their size.
+#[test]
+fn the_walk_budget_counts_every_gsid_stage_and_level() {
+    let two = |walks: u32| {
+        format!(
+            "name = \"two\"\n[[stage]]\nkind = \"gsid\"\nid = \"a\"\nwalks = {walks}\nmax_steps = 100\n\
+             [[stage]]\nkind = \"gsid\"\nid = \"b\"\ninput = \"out\"\nwalks = {walks}\nmax_steps = 100\n"
+        )
+    };
+    assert!(PipelineSpec::parse(&two(50), "t.toml")
+        .unwrap()
+        .build()
+        .is_ok());
+    let err = PipelineSpec::parse(&two(60), "t.toml")
+        .unwrap()
+        .build()
+        .err()
+        .expect("12 000 steps a pixel refused")
+        .to_string();
+    assert!(
+        err.contains("12000 steps per pixel") && err.contains("10000"),
+        "{err}"
+    );
+    // 80 × 100 on every level of 3: 8000 · (1 + 1/4 + 1/16) = 10 500.
+    let pyramid = "name = \"p\"\n[[stage]]\nkind = \"pyramid\"\nlevels = 3\n\
+                   [[stage.stages]]\nkind = \"gsid\"\nwalks = 80\nmax_steps = 100\n";
+    let err = PipelineSpec::parse(pyramid, "p.toml")
+        .unwrap()
+        .build()
+        .err()
+        .unwrap();
+    assert!(err.to_string().contains("10500 steps per pixel"), "{err}");
+}

@@ -73,21 +73,28 @@ fn refused(extra: &[&str], key: &str) {
     assert!(err.contains(key), "error does not name `{key}`: {err}");
 }
 
+/// walks × max_steps is bounded by the time budget of 10 000 steps a pixel: the settings that
+/// would have run for hours on 256² (40 × 100 000 at σ 1e-6, p_min 1e-300; 100 000 × 40) are
+/// refused before the work, naming the key.
 #[test]
 fn walks_times_max_steps_beyond_the_cap_is_refused() {
-    refused(
-        &[
-            "--pipeline",
-            "gsid",
-            "--set",
-            "gsid.walks=100000",
-            "--set",
-            "gsid.max_steps=100000",
-            "--set",
-            "gsid.sigma=1e-3",
-        ],
-        "max_steps",
-    );
+    for (walks, steps) in [("100000", "100000"), ("40", "100000"), ("100000", "40")] {
+        refused(
+            &[
+                "--pipeline",
+                "gsid",
+                "--set",
+                &format!("gsid.walks={walks}"),
+                "--set",
+                &format!("gsid.max_steps={steps}"),
+                "--set",
+                "gsid.sigma=1e-6",
+                "--set",
+                "gsid.p_min=1e-300",
+            ],
+            "gsid.",
+        );
+    }
 }
 
 /// On a 2×1 image every step has probability 1, so every walk takes all its steps: the step
@@ -96,7 +103,7 @@ fn walks_times_max_steps_beyond_the_cap_is_refused() {
 fn longest_walks_run_in_memory_independent_of_their_length() {
     for (w, h) in [(2, 1), (2, 2)] {
         let walks = ["--pipeline", "gsid", "--set", "gsid.sigma=1e-3"];
-        for (n, steps) in [("40", "100000"), ("100000", "40")] {
+        for (n, steps) in [("1", "10000"), ("10000", "1"), ("40", "250")] {
             let walks_n = format!("gsid.walks={n}");
             let steps_n = format!("gsid.max_steps={steps}");
             let args = [&walks[..], &["--set", &walks_n, "--set", &steps_n]].concat();

@@ -57,6 +57,12 @@ pub struct StageReport {
     pub walk_steps: u64,
 }
 
+/// Most walk steps a pipeline may take per pixel, over all its `gsid` stages and pyramid levels.
+/// A walk that never falls below `p_min` takes every step, and the slowest steps measured (tiny σ
+/// over noise, where each step takes the log-domain path) run at about 15 M a second on two cores:
+/// this keeps the worst accepted settings on a 256² image under a minute.
+pub const MAX_STEPS_PER_PIXEL: f64 = 10_000.0;
+
 /// Builds a stage from its spec: what a composite stage is handed to build its sub-stages.
 pub type StageBuilder = fn(&crate::spec::StageSpec) -> Result<Box<dyn Stage>>;
 
@@ -68,6 +74,12 @@ pub trait Stage: Send + Sync {
     fn requires(&self) -> Vec<String>;
     /// Buffers it creates or replaces.
     fn writes(&self) -> Vec<String>;
+    /// The most walk steps this stage takes per pixel of its input (walks × max_steps for a
+    /// `gsid` stage, its levels' sum weighted by their size for a pyramid): what the pipeline's
+    /// time budget, [`MAX_STEPS_PER_PIXEL`], counts.
+    fn steps_per_pixel(&self) -> f64 {
+        0.0
+    }
     /// The work itself; `execute` has checked `requires`.
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64>;
 

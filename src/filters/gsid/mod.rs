@@ -7,7 +7,9 @@ use serde::{Deserialize, Serialize};
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::features::{Features, Recipe, Tone, Weights};
-use crate::filters::stage::{parse_params, read_mask, Context, Stage, StageIo};
+use crate::filters::stage::{
+    parse_params, read_mask, Context, Stage, StageIo, MAX_STEPS_PER_PIXEL,
+};
 use crate::progress::Progress;
 use walk::{FeatureSource, WalkJob, WalkParams};
 
@@ -69,10 +71,9 @@ impl Default for GsidParams {
     }
 }
 
-/// Most steps the walks of one start pixel may take together (walks × max_steps). Walks that
-/// never drop below `p_min` (a tiny σ over similar pixels) take every step, so this bounds the
-/// time a pixel costs, whatever the settings.
-const MAX_WALK_STEPS: u64 = 4_000_000;
+/// Most steps the walks of one start pixel may take together (walks × max_steps): the whole
+/// pipeline's budget (`MAX_STEPS_PER_PIXEL`), which all its walks share.
+const MAX_WALK_STEPS: u64 = MAX_STEPS_PER_PIXEL as u64;
 
 impl GsidParams {
     /// Checks every key against its allowed range; the error names the key.
@@ -232,6 +233,10 @@ pub fn run_gsid(
 impl Stage for GsidStage {
     fn id(&self) -> &str {
         &self.id
+    }
+
+    fn steps_per_pixel(&self) -> f64 {
+        self.params.walks as f64 * self.params.max_steps as f64
     }
 
     fn requires(&self) -> Vec<String> {

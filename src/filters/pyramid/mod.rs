@@ -174,6 +174,17 @@ impl Stage for PyramidStage {
         &self.id
     }
 
+    /// Level l holds a quarter of level l − 1's pixels, so its walks count a quarter as much.
+    fn steps_per_pixel(&self) -> f64 {
+        let mut share = 1.0;
+        let mut total = 0.0;
+        for level in &self.levels {
+            total += share * level.iter().map(|s| s.steps_per_pixel()).sum::<f64>();
+            share /= 4.0;
+        }
+        total
+    }
+
     fn requires(&self) -> Vec<String> {
         vec![self.io.input.clone()]
     }
