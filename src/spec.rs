@@ -289,6 +289,9 @@ impl StageSpec {
 
 /// Parses an array of stage tables (`[[stage]]`, or a composite stage's sub-list); `prefix` names
 /// the array in errors (e.g. `stage`, `pyramid.stages`).
+/// Largest pipeline file read: the shipped ones are a few KiB, and 256 stages fit in far less.
+pub const MAX_PIPELINE_BYTES: u64 = 1 << 20;
+
 /// Most stages one pipeline file may hold, sub-stages included: far more than any pipeline runs.
 pub const MAX_STAGES: usize = 256;
 
@@ -424,7 +427,7 @@ impl PipelineSpec {
         let looks_like_file =
             name_or_path.ends_with(".toml") || name_or_path.contains(std::path::MAIN_SEPARATOR);
         if looks_like_file {
-            let text = std::fs::read_to_string(as_path).map_err(|e| Error::file(as_path, e))?;
+            let text = crate::io::read_text(as_path, MAX_PIPELINE_BYTES, "pipeline file")?;
             return Self::parse(&text, name_or_path);
         }
         // A bare name is always the built-in pipeline, never a file that happens to sit in the

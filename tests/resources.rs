@@ -18,7 +18,8 @@ const RSS_LIMIT_KIB: i64 = 512 * 1024;
 fn run(args: &[&str]) -> (Option<i32>, String, i64) {
     let dir = tempfile::tempdir().unwrap();
     let err_path = dir.path().join("stderr");
-    let child = Command::new(env!("CARGO_BIN_EXE_gsid"))
+    let bin = std::env::var_os("GSID_BIN").unwrap_or_else(|| env!("CARGO_BIN_EXE_gsid").into());
+    let child = Command::new(bin)
         .args(args)
         .stdout(Stdio::null())
         .stderr(std::fs::File::create(&err_path).unwrap())
@@ -226,4 +227,27 @@ fn exr_declaring_too_many_pixels_is_refused() {
         "error does not name the file: {err}"
     );
     assert!(rss < RSS_LIMIT_KIB, "peaked at {rss} KiB");
+}
+
+/// A pipeline or scene file is read with a cap: an endless source (`/dev/zero`) or a huge file is
+/// refused after 1 MiB (pipeline) or 4 MiB (scene), naming it (both read 8 GB before failing).
+#[test]
+fn pipeline_and_scene_files_are_read_with_a_cap() {
+    let (code, err, _, written) = denoise(3, 2, &["--pipeline", "/dev/zero"]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("/dev/zero") && err.contains("larger than"),
+        "{err}"
+    );
+    assert!(!written);
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("r");
+    let (code, err, rss) = run(&["render", "/dev/zero", "-q", "-o", out.to_str().unwrap()]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("/dev/zero") && err.contains("larger than"),
+        "{err}"
+    );
+    assert!(rss < 64 * 1024, "peaked at {rss} KiB");
+    assert!(!out.exists());
 }

@@ -141,6 +141,20 @@ fn bad_input_exits_2_with_one_line_and_writes_nothing() {
     let out_arg = out.to_str().unwrap();
     let set = Path::new(env!("CARGO_MANIFEST_DIR")).join(SET);
     let set = set.to_str().unwrap();
+    let many = format!(
+        "gsid.walks={}",
+        (1..=120)
+            .map(|n| n.to_string())
+            .collect::<Vec<_>>()
+            .join(",")
+    );
+    let many_sigma = format!(
+        "gsid.sigma={}",
+        (1..=120)
+            .map(|n| format!("0.{n:03}"))
+            .collect::<Vec<_>>()
+            .join(",")
+    );
     let cases: &[(&[&str], &str)] = &[
         (&["--vary", "gsid.walkz=2,4"], "gsid.walkz"),
         (&["--vary", "gsid.walks=4,-1"], "gsid.walks=-1"),
@@ -159,6 +173,8 @@ fn bad_input_exits_2_with_one_line_and_writes_nothing() {
             &["--vary", "gsid.walks=2", "--repeat", "4294967295"],
             "--repeat",
         ),
+        // 120 × 120 settings: refused before building any (3.6 M took 7.7 GB).
+        (&["--vary", &many, "--vary", &many_sigma], "--vary"),
         (&[], "--vary"),
     ];
     for (extra, culprit) in cases {

@@ -27,4 +27,4 @@ pub use format::{check_output, write_image, Encoding, ImageFormat};
 pub use load::{is_render_set, load_input, load_named, load_render_set};
 pub use loaded_set::{find_reference, LoadedSet};
 pub use output::{remove_pending_outputs, write_exr, PendingFolder, PendingOutput, STDOUT};
-pub use read::{is_ldr, read_color, read_image, srgb_to_linear};
+pub use read::{is_ldr, read_color, read_image, read_text, srgb_to_linear};

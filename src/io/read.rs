@@ -8,6 +8,26 @@ use super::{passes, pfm};
 use crate::error::{Error, Result};
 use crate::image::Image;
 
+/// Reads a text file (a pipeline, a scene) of at most `max` bytes. A larger one, or an endless
+/// source (`/dev/zero`, a FIFO), is refused once `max` + 1 bytes are read, naming it: never read
+/// whole into memory.
+pub fn read_text(path: &Path, max: u64, what: &str) -> Result<String> {
+    use std::io::Read;
+    let file = std::fs::File::open(path).map_err(|e| Error::file(path, e))?;
+    let mut bytes = Vec::new();
+    file.take(max + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| Error::file(path, e))?;
+    if bytes.len() as u64 > max {
+        return Err(Error::file(
+            path,
+            format!("is larger than {} KiB, more than any {what}", max / 1024),
+        ));
+    }
+    String::from_utf8(bytes)
+        .map_err(|_| Error::file(path, format!("is not a {what}: not UTF-8 text")))
+}
+
 /// Reads an image file as `channels` channels (3 = RGB, 1 = a single channel).
 ///
 /// EXR channels are matched on the last dotted component of their names, so Blender-style

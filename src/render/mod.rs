@@ -65,7 +65,7 @@ pub fn run(args: &RenderArgs, quiet: bool) -> Result<()> {
     if args.spp.contains(&0) {
         return Err(Error::config("--spp", "sample counts must be ≥ 1"));
     }
-    let text = std::fs::read_to_string(&args.scene).map_err(|e| Error::file(&args.scene, e))?;
+    let text = crate::io::read_text(&args.scene, scene::MAX_SCENE_BYTES, "scene file")?;
     let scene = Scene::load(&args.scene)?;
     let seed = args.seed.unwrap_or(scene.seed);
     let effects = if args.all_effects {

@@ -17,6 +17,10 @@ use super::shapes::{Geometry, Quad, Sphere};
 use super::texture::{TexRef, Texture};
 use crate::error::{Error, Result};
 
+/// Largest scene file read (a scene's shapes and materials, not its textures, which are files of
+/// their own).
+pub const MAX_SCENE_BYTES: u64 = 4 << 20;
+
 /// A scene resolved for rendering.
 #[derive(Debug)]
 pub struct Scene {
@@ -39,7 +43,7 @@ pub struct Scene {
 impl Scene {
     /// Reads and resolves a scene file; image textures are found relative to it.
     pub fn load(path: &Path) -> Result<Scene> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::file(path, e))?;
+        let text = crate::io::read_text(path, MAX_SCENE_BYTES, "scene file")?;
         Scene::parse(&text, path.parent().unwrap_or(Path::new("."))).map_err(|e| match e {
             Error::Config { key, msg } => Error::config(format!("{}: {key}", path.display()), msg),
             other => other,

@@ -127,6 +127,10 @@ pub struct Setting {
     pub notes: Vec<String>,
 }
 
+/// Most settings one sweep runs: each is a full pipeline run (times `--repeat`), so a larger grid
+/// is a typo, and every setting's spec is built up front.
+pub const MAX_SETTINGS: usize = 10_000;
+
 /// Every combination of the axes' values (first axis slowest), each applied to `base` and built.
 ///
 /// All validation happens here, before any denoising. A combination that does not build is reported
@@ -136,7 +140,20 @@ pub struct Setting {
 /// another axis (that same `level2`) would then be rejected although every combination is valid.
 pub fn settings(base: &PipelineSpec, axes: &[Axis]) -> Result<Vec<Setting>> {
     let names = short_names(&axes.iter().map(|a| a.key.clone()).collect::<Vec<_>>());
-    let count: usize = axes.iter().map(|a| a.values.len()).product();
+    let count = axes
+        .iter()
+        .try_fold(1usize, |n, a| n.checked_mul(a.values.len()))
+        .filter(|&n| n <= MAX_SETTINGS)
+        .ok_or_else(|| {
+            let sizes: Vec<String> = axes.iter().map(|a| a.values.len().to_string()).collect();
+            Error::config(
+                "--vary",
+                format!(
+                    "the grid has {} settings, more than the {MAX_SETTINGS} a sweep runs",
+                    sizes.join(" × ")
+                ),
+            )
+        })?;
     let mut out = Vec::with_capacity(count);
     for n in 0..count {
         // Mixed-radix digits of n, the last axis fastest.
