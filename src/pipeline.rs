@@ -8,7 +8,7 @@ use serde::Serialize;
 use crate::buffers::{Buffers, COLOR};
 use crate::condition::{Conditioning, SanitizeReport};
 use crate::error::{Error, Result};
-use crate::filters::stage::MAX_STEPS_PER_PIXEL;
+use crate::filters::stage::{steps_per_pixel_allowed, MAX_STEPS_PER_PIXEL};
 use crate::filters::{self, Context, Stage, StageReport};
 use crate::image::Image;
 use crate::options::DenoiseOptions;
@@ -96,6 +96,7 @@ impl Pipeline {
             ctx.note(line);
         }
         self.check_buffers(buffers)?;
+        self.check_steps(buffers)?;
         let count = self.stages.len().max(1) as f32;
         for (done, stage) in self.stages.iter().enumerate() {
             options.report(done as f32 / count, stage.id());
@@ -120,6 +121,30 @@ impl Pipeline {
             seconds: start.elapsed().as_secs_f64(),
         };
         Ok((out, report))
+    }
+
+    /// The most walk steps a pixel may take, over every stage.
+    pub fn steps_per_pixel(&self) -> f64 {
+        self.stages.iter().map(|s| s.steps_per_pixel()).sum()
+    }
+
+    /// Checks, before any work, that the walks fit the time budget of an image this size.
+    fn check_steps(&self, buffers: &Buffers) -> Result<()> {
+        let Some((w, h)) = buffers.get(COLOR).map(Image::dims) else {
+            return Ok(());
+        };
+        let (steps, allowed) = (self.steps_per_pixel(), steps_per_pixel_allowed(w * h));
+        if steps > allowed {
+            return Err(Error::config(
+                "walks",
+                format!(
+                    "pipeline {} may take {steps:.0} walk steps a pixel, {:.1} G on this {w}x{h} image; at most {allowed:.0} a pixel at this size (walks × max_steps over its gsid stages)",
+                    self.name,
+                    steps * (w * h) as f64 / 1e9
+                ),
+            ));
+        }
+        Ok(())
     }
 
     /// Checks, before any work, that every stage's inputs exist or are written by an earlier stage.

@@ -297,3 +297,80 @@ fn render_builds_its_set_aside_and_replaces_an_old_one_whole() {
         "no temp folder left"
     );
 }
+
+/// The name a temporary output of process `pid` on this machine has (as `io::stale` makes it).
+fn temp_name(pid: u32, rest: &str) -> String {
+    let host: String = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .unwrap()
+        .trim()
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '.' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    format!(".gsid-{host}-{pid}-{rest}.tmp")
+}
+
+/// A run killed with SIGKILL cannot clean up: its temporary file stays. The next run writing into
+/// that folder removes it (it stayed for good), and nothing else: not a live process's temporary
+/// file, not another machine's, not a file gsid did not name.
+#[test]
+fn sigkill_leaves_a_temp_file_that_the_next_run_removes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = tmp.path().join("set");
+    write_set(&set, &synthetic_set(2048, 2048));
+    let out_dir = tmp.path().join("out");
+    std::fs::create_dir(&out_dir).unwrap();
+    let child = Command::new(env!("CARGO_BIN_EXE_gsid"))
+        .args([
+            "denoise",
+            set.to_str().unwrap(),
+            "--pipeline",
+            "quality",
+            "-q",
+            "-o",
+        ])
+        .arg(out_dir.join("big.exr"))
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_secs(1));
+    // SAFETY: kill sends a signal to the child we started; it has no memory-safety preconditions.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGKILL) }, 0);
+    let done = child.wait_with_output().unwrap();
+    assert_eq!(done.status.code(), None, "killed");
+    let left = files_in(&out_dir);
+    assert_eq!(left.len(), 1, "{left:?}");
+    assert!(
+        left[0].starts_with(".gsid-") && left[0].ends_with(".tmp"),
+        "{left:?}"
+    );
+    // Files that must stay: this (live) process's, another host's, one gsid did not name.
+    let keep = [
+        temp_name(std::process::id(), "live00"),
+        ".gsid-another_host-1-abc123.tmp".to_string(),
+        ".gsid-abc123.tmp".to_string(),
+    ];
+    for name in &keep {
+        std::fs::write(out_dir.join(name), "x").unwrap();
+    }
+    let small = tmp.path().join("small");
+    write_set(&small, &synthetic_set(8, 6));
+    let run = gsid(&[
+        "denoise",
+        small.to_str().unwrap(),
+        "-p",
+        "fast",
+        "-q",
+        "-o",
+        out_dir.join("small.exr").to_str().unwrap(),
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let mut want: Vec<String> = keep.to_vec();
+    want.push("small.exr".to_string());
+    want.sort();
+    assert_eq!(files_in(&out_dir), want);
+}

@@ -154,27 +154,27 @@ fn the_walk_budget_counts_every_gsid_stage_and_level() {
              [[stage]]\nkind = \"gsid\"\nid = \"b\"\ninput = \"out\"\nwalks = {walks}\nmax_steps = 100\n"
         )
     };
-    assert!(PipelineSpec::parse(&two(50), "t.toml")
+    assert!(PipelineSpec::parse(&two(300), "t.toml")
         .unwrap()
         .build()
         .is_ok());
-    let err = PipelineSpec::parse(&two(60), "t.toml")
+    let err = PipelineSpec::parse(&two(400), "t.toml")
         .unwrap()
         .build()
         .err()
-        .expect("12 000 steps a pixel refused")
+        .expect("80 000 steps a pixel refused")
         .to_string();
     assert!(
-        err.contains("12000 steps per pixel") && err.contains("10000"),
+        err.contains("80000 steps per pixel") && err.contains("65536"),
         "{err}"
     );
-    // 80 × 100 on every level of 3: 8000 · (1 + 1/4 + 1/16) = 10 500.
+    // 600 × 100 on every level of 3: 60 000 · (1 + 1/4 + 1/16) = 78 750.
     let pyramid = "name = \"p\"\n[[stage]]\nkind = \"pyramid\"\nlevels = 3\n\
-                   [[stage.stages]]\nkind = \"gsid\"\nwalks = 80\nmax_steps = 100\n";
+                   [[stage.stages]]\nkind = \"gsid\"\nwalks = 600\nmax_steps = 100\n";
     let err = PipelineSpec::parse(pyramid, "p.toml")
         .unwrap()
         .build()
         .err()
         .unwrap();
-    assert!(err.to_string().contains("10500 steps per pixel"), "{err}");
+    assert!(err.to_string().contains("78750 steps per pixel"), "{err}");
 }

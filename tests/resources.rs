@@ -74,9 +74,9 @@ fn refused(extra: &[&str], key: &str) {
     assert!(err.contains(key), "error does not name `{key}`: {err}");
 }
 
-/// walks × max_steps is bounded by the time budget of 10 000 steps a pixel: the settings that
-/// would have run for hours on 256² (40 × 100 000 at σ 1e-6, p_min 1e-300; 100 000 × 40) are
-/// refused before the work, naming the key.
+/// walks × max_steps is bounded by 65 536 steps a pixel: the settings that would have run for
+/// hours on 256² (40 × 100 000 at σ 1e-6, p_min 1e-300; 100 000 × 40) are refused when the
+/// pipeline is built, naming the key.
 #[test]
 fn walks_times_max_steps_beyond_the_cap_is_refused() {
     for (walks, steps) in [("100000", "100000"), ("40", "100000"), ("100000", "40")] {
@@ -250,4 +250,27 @@ fn pipeline_and_scene_files_are_read_with_a_cap() {
     );
     assert!(rss < 64 * 1024, "peaked at {rss} KiB");
     assert!(!out.exists());
+}
+
+/// Above 10 000 steps a pixel, an image may take 1.2 G steps in all (a minute at the slowest
+/// steps): 50 000 a pixel are refused on 256², before the work, naming the estimate, and taken on a
+/// 24×24 crop.
+#[test]
+fn the_walk_budget_follows_the_image_size() {
+    let args = [
+        "--pipeline",
+        "gsid",
+        "--set",
+        "gsid.walks=500",
+        "--set",
+        "gsid.max_steps=100",
+    ];
+    let (code, err, _, written) = denoise(256, 256, &args);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("walks") && err.contains("G on this 256x256 image"),
+        "{err}"
+    );
+    assert!(!written);
+    denoise_within(24, 24, &args, RSS_LIMIT_KIB);
 }

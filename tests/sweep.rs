@@ -262,3 +262,48 @@ proptest! {
         prop_assert_eq!(pareto_front(&rotated), expect);
     }
 }
+
+/// A sweep stopped by SIGTERM removes the `--out` folder it created (it stayed, empty), and exits
+/// 143; an `--out` folder that was already there stays.
+#[test]
+fn a_stopped_sweep_leaves_no_folder_it_made() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = tmp.path().join("set");
+    let buffers = synthetic_set(384, 384);
+    write_set(&set, &buffers);
+    gsid::io::write_exr(&set.join("reference.exr"), buffers.get("color").unwrap()).unwrap();
+    for existed in [false, true] {
+        let out = tmp.path().join(format!("sweep{existed}"));
+        if existed {
+            std::fs::create_dir(&out).unwrap();
+        }
+        let child = gsid_command()
+            .args(["sweep", set.to_str().unwrap(), "-p", "full", "-q"])
+            .args([
+                "--vary",
+                "pyramid.gsid.walks=1,2,3,4",
+                "--repeat",
+                "50",
+                "--out",
+            ])
+            .arg(&out)
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Until the folder is made (the inputs are read first), then a little into the work.
+        let start = std::time::Instant::now();
+        while !out.exists() && start.elapsed().as_secs() < 20 {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        std::thread::sleep(std::time::Duration::from_millis(500));
+        // SAFETY: kill sends a signal to the child we started; no memory-safety preconditions.
+        assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGTERM) }, 0);
+        let done = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&done.stderr);
+        assert_eq!(done.status.code(), Some(143), "{err}");
+        assert_eq!(out.exists(), existed, "existed before: {existed}");
+        if existed {
+            assert!(files_in(&out).is_empty(), "{:?}", files_in(&out));
+        }
+    }
+}

@@ -88,19 +88,13 @@ pub(super) fn sweep(args: &SweepArgs, quiet: bool) -> Result<()> {
     let settings = sweep::settings(&base, &axes)?;
     let set = io::load_input(&args.dir, &[])?;
     let reference = reference_for(&set, args.reference.as_ref())?;
-    if args.out.exists() && !args.out.is_dir() {
-        return Err(Error::output(&args.out, "is not a folder"));
-    }
-    let created = !args.out.exists();
-    std::fs::create_dir_all(&args.out).map_err(|e| Error::output(&args.out, e))?;
+    // Made if missing; removed again (if empty) on failure or a signal, kept once filled.
+    let folder = io::NewFolder::create(&args.out)?;
     let notes = set.notes;
     let buffers = Buffers::from(set.set);
-    let result = sweep_into(args, &ctx, &notes, &buffers, &reference, &axes, &settings);
-    if result.is_err() && created {
-        // Leave nothing behind: the folder is empty again once the reserved files are dropped.
-        let _ = std::fs::remove_dir(&args.out);
-    }
-    result
+    sweep_into(args, &ctx, &notes, &buffers, &reference, &axes, &settings)?;
+    folder.keep();
+    Ok(())
 }
 
 fn sweep_into(

@@ -57,11 +57,23 @@ pub struct StageReport {
     pub walk_steps: u64,
 }
 
-/// Most walk steps a pipeline may take per pixel, over all its `gsid` stages and pyramid levels.
-/// A walk that never falls below `p_min` takes every step, and the slowest steps measured (tiny σ
-/// over noise, where each step takes the log-domain path) run at about 15 M a second on two cores:
-/// this keeps the worst accepted settings on a 256² image under a minute.
-pub const MAX_STEPS_PER_PIXEL: f64 = 10_000.0;
+/// Most walk steps a pipeline may take per pixel, over all its `gsid` stages and pyramid levels,
+/// on any image (checked when it is built). A walk that never falls below `p_min` takes every step.
+pub const MAX_STEPS_PER_PIXEL: f64 = 65_536.0;
+
+/// Steps per pixel every image may take, whatever its size: far above the presets' few thousand.
+pub const STEPS_PER_PIXEL_ALWAYS: f64 = 10_000.0;
+
+/// Most steps one image may take in all when that is above [`STEPS_PER_PIXEL_ALWAYS`] a pixel: the
+/// slowest steps measured (σ 1e-6 over noise, where every step takes the log-domain path) run at
+/// about 24 M a second on two cores, so the worst accepted settings on 256² end within a minute,
+/// while a small crop may still take many more walks a pixel.
+pub const STEPS_PER_IMAGE: f64 = 1.2e9;
+
+/// The most walk steps a pixel of a `pixels`-pixel image may take (see [`STEPS_PER_IMAGE`]).
+pub fn steps_per_pixel_allowed(pixels: usize) -> f64 {
+    (STEPS_PER_IMAGE / pixels.max(1) as f64).clamp(STEPS_PER_PIXEL_ALWAYS, MAX_STEPS_PER_PIXEL)
+}
 
 /// Builds a stage from its spec: what a composite stage is handed to build its sub-stages.
 pub type StageBuilder = fn(&crate::spec::StageSpec) -> Result<Box<dyn Stage>>;

@@ -20,11 +20,14 @@ pub mod passes;
 pub mod pfm;
 mod preview;
 mod read;
+mod stale;
 
 pub use compression::Compression;
 pub use exr_file::{Frame, Plane};
 pub use format::{check_output, write_image, Encoding, ImageFormat};
 pub use load::{is_render_set, load_input, load_named, load_render_set};
 pub use loaded_set::{find_reference, LoadedSet};
-pub use output::{remove_pending_outputs, write_exr, PendingFolder, PendingOutput, STDOUT};
+pub use output::{
+    remove_pending_outputs, write_exr, NewFolder, PendingFolder, PendingOutput, STDOUT,
+};
 pub use read::{is_ldr, read_color, read_image, read_text, srgb_to_linear};

@@ -13,6 +13,7 @@ use std::sync::Mutex;
 
 use super::compression::Compression;
 use super::exr_file::{self, Frame};
+use super::stale;
 use crate::error::{Error, Result};
 use crate::image::Image;
 
@@ -46,8 +47,16 @@ impl Drop for Registered {
     }
 }
 
-/// Removes every temporary file and folder of an output not yet committed (for a signal handler,
-/// which then exits). Holds the list's lock, so no new output starts meanwhile.
+/// Folders a run created for its outputs and has not finished filling.
+static CREATED: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+
+fn created() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
+    CREATED.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Removes every temporary file and folder of an output not yet committed, then every folder the
+/// run created for its outputs that is empty again (for a signal handler, which then exits). Holds
+/// the lists' locks, so no new output starts meanwhile.
 pub fn remove_pending_outputs() {
     let list = pending();
     for path in list.iter() {
@@ -57,7 +66,58 @@ pub fn remove_pending_outputs() {
             std::fs::remove_file(path)
         };
     }
+    let folders = created();
+    for path in folders.iter().rev() {
+        let _ = std::fs::remove_dir(path);
+    }
     std::mem::forget(list);
+    std::mem::forget(folders);
+}
+
+/// An output folder (`sweep --out`) created by this run if it was missing. Until [`NewFolder::keep`]
+/// it is removed again, if empty, when dropped (a failed run) or on SIGINT/SIGTERM, so a stopped run
+/// leaves no empty folder behind; a folder that was already there is never removed.
+pub struct NewFolder {
+    made: Option<PathBuf>,
+}
+
+impl NewFolder {
+    pub fn create(path: &Path) -> Result<Self> {
+        if path.exists() {
+            if !path.is_dir() {
+                return Err(Error::output(path, "is not a folder"));
+            }
+            return Ok(NewFolder { made: None });
+        }
+        std::fs::create_dir_all(path).map_err(|e| Error::output(path, e))?;
+        created().push(path.to_path_buf());
+        Ok(NewFolder {
+            made: Some(path.to_path_buf()),
+        })
+    }
+
+    /// The run filled the folder: it stays.
+    pub fn keep(mut self) {
+        self.forget();
+    }
+
+    fn forget(&mut self) {
+        if let Some(path) = self.made.take() {
+            let mut list = created();
+            if let Some(i) = list.iter().position(|p| *p == path) {
+                list.remove(i);
+            }
+        }
+    }
+}
+
+impl Drop for NewFolder {
+    fn drop(&mut self) {
+        if let Some(path) = self.made.clone() {
+            let _ = std::fs::remove_dir(&path);
+        }
+        self.forget();
+    }
 }
 
 /// Writes an EXR (float32, zip-compressed): RGB for 3 channels, `Y` for one.
@@ -76,8 +136,8 @@ fn parent_dir(path: &Path) -> PathBuf {
     }
 }
 
-/// A temporary file or folder (`make`) named `.gsid-*.tmp` in the folder `path` will be in, which
-/// must exist.
+/// A temporary file or folder (`make`) named `.gsid-HOST-PID-*.tmp` in the folder `path` will be
+/// in, which must exist; what dead runs left there is removed first (`stale`).
 fn temp_beside<T>(
     path: &Path,
     make: impl FnOnce(&tempfile::Builder, &Path) -> std::io::Result<T>,
@@ -89,8 +149,11 @@ fn temp_beside<T>(
             format!("folder {} does not exist", dir.display()),
         ));
     }
+    stale::sweep(&dir);
     make(
-        tempfile::Builder::new().prefix(".gsid-").suffix(".tmp"),
+        tempfile::Builder::new()
+            .prefix(&stale::prefix())
+            .suffix(".tmp"),
         &dir,
     )
     .map_err(|e| Error::output(path, e))
@@ -325,7 +388,8 @@ impl PendingFolder {
         let staged = tmp.keep();
         let old = if self.path.exists() {
             let aside = tempfile::Builder::new()
-                .prefix(".gsid-old-")
+                .prefix(&format!("{}old", stale::prefix()))
+                .suffix(".tmp")
                 .tempdir_in(parent_dir(&self.path))
                 .map_err(|e| Error::write(&self.path, e))?
                 .keep();
