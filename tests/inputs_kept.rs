@@ -35,6 +35,18 @@ fn sets(root: &Path, names: &[&str]) -> PathBuf {
     renders
 }
 
+/// `gsid denoise RENDERS -o TARGET -p fast`.
+fn denoise_sets(renders: &Path, target: &Path) -> std::process::Output {
+    gsid(&[
+        "denoise",
+        renders.to_str().unwrap(),
+        "-o",
+        target.to_str().unwrap(),
+        "-p",
+        "fast",
+    ])
+}
+
 /// The reported case: a set named like a buffer (`color`) beside the set the output goes into.
 #[test]
 fn a_folder_of_sets_is_never_written_into_one_of_its_sets() {
@@ -42,14 +54,7 @@ fn a_folder_of_sets_is_never_written_into_one_of_its_sets() {
     let renders = sets(tmp.path(), &["color", "setA"]);
     let before = snapshot(&renders);
     let target = renders.join("setA");
-    let out = gsid(&[
-        "denoise",
-        renders.to_str().unwrap(),
-        "-o",
-        target.to_str().unwrap(),
-        "-p",
-        "fast",
-    ]);
+    let out = denoise_sets(&renders, &target);
     assert_bad_input(&out, "setA");
     assert!(
         stderr(&out).contains("refusing to write over an input"),
@@ -82,14 +87,7 @@ proptest! {
         if inside {
             target = target.join("sub");
         }
-        let out = gsid(&[
-            "denoise",
-            renders.to_str().unwrap(),
-            "-o",
-            target.to_str().unwrap(),
-            "-p",
-            "fast",
-        ]);
+        let out = denoise_sets(&renders, &target);
         let after = snapshot(&renders);
         for (path, bytes) in &before {
             prop_assert_eq!(after.get(path), Some(bytes), "{} changed", path.display());
@@ -113,14 +111,7 @@ fn a_folder_of_sets_refuses_an_image_file_as_its_output() {
     let tmp = tempfile::tempdir().unwrap();
     let renders = sets(tmp.path(), &["setA", "setB"]);
     let target = tmp.path().join("out.exr");
-    let out = gsid(&[
-        "denoise",
-        renders.to_str().unwrap(),
-        "-o",
-        target.to_str().unwrap(),
-        "-p",
-        "fast",
-    ]);
+    let out = denoise_sets(&renders, &target);
     assert_bad_input(&out, "out.exr");
     assert!(!target.exists());
 }

@@ -9,7 +9,7 @@
 mod common;
 
 use std::os::unix::fs::{FileTypeExt, PermissionsExt};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
@@ -193,9 +193,9 @@ fn outputs_get_the_umask_s_mode_and_keep_an_existing_file_s() {
     assert_eq!(mode(&out), 0o600);
 }
 
-/// Starts `gsid denoise` on a 2048² set, sends `signal` after a second, and checks the exit code
-/// and that the output folder is left empty.
-fn interrupted(signal: i32, code: i32) {
+/// Starts `gsid denoise` on a 2048² set writing into a fresh folder, sends `signal` after a
+/// second, and returns the temporary root, that folder and what the run gave.
+fn signalled(signal: i32) -> (tempfile::TempDir, PathBuf, std::process::Output) {
     let tmp = tempfile::tempdir().unwrap();
     let set = tmp.path().join("set");
     write_set(&set, &synthetic_set(2048, 2048));
@@ -218,6 +218,12 @@ fn interrupted(signal: i32, code: i32) {
     // SAFETY: kill sends a signal to the child we started; it has no memory-safety preconditions.
     assert_eq!(unsafe { libc::kill(child.id() as i32, signal) }, 0);
     let done = child.wait_with_output().unwrap();
+    (tmp, out_dir, done)
+}
+
+/// [`signalled`] with a signal gsid handles: the exit code, and the output folder left empty.
+fn interrupted(signal: i32, code: i32) {
+    let (_tmp, out_dir, done) = signalled(signal);
     assert_eq!(
         done.status.code(),
         Some(code),
@@ -320,27 +326,7 @@ fn temp_name(pid: u32, rest: &str) -> String {
 /// file, not another machine's, not a file gsid did not name.
 #[test]
 fn sigkill_leaves_a_temp_file_that_the_next_run_removes() {
-    let tmp = tempfile::tempdir().unwrap();
-    let set = tmp.path().join("set");
-    write_set(&set, &synthetic_set(2048, 2048));
-    let out_dir = tmp.path().join("out");
-    std::fs::create_dir(&out_dir).unwrap();
-    let child = Command::new(env!("CARGO_BIN_EXE_gsid"))
-        .args([
-            "denoise",
-            set.to_str().unwrap(),
-            "--pipeline",
-            "quality",
-            "-q",
-            "-o",
-        ])
-        .arg(out_dir.join("big.exr"))
-        .spawn()
-        .unwrap();
-    std::thread::sleep(Duration::from_secs(1));
-    // SAFETY: kill sends a signal to the child we started; it has no memory-safety preconditions.
-    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGKILL) }, 0);
-    let done = child.wait_with_output().unwrap();
+    let (tmp, out_dir, done) = signalled(libc::SIGKILL);
     assert_eq!(done.status.code(), None, "killed");
     let left = files_in(&out_dir);
     assert_eq!(left.len(), 1, "{left:?}");

@@ -3,6 +3,19 @@
 
 use gsid::{DenoiseOptions, Image, PipelineSpec, RenderSet};
 
+/// The notes of `spec` run on a small colour-only image.
+fn notes_of(spec: &PipelineSpec) -> Vec<String> {
+    let color = Image::from_fn(16, 12, 3, |x, y, c| {
+        0.1 + ((x + 2 * y + c) % 5) as f32 * 0.1
+    });
+    let pipeline = spec.build().unwrap();
+    let mut buffers = RenderSet::new(color).into();
+    let (_, report) = pipeline
+        .run(&mut buffers, &DenoiseOptions::default())
+        .unwrap();
+    report.notes
+}
+
 /// `local_noise` is checked like the other noise keys, in both stages that take it.
 #[test]
 fn out_of_range_local_noise_is_named() {
@@ -48,23 +61,11 @@ fn out_of_range_factors_are_named() {
 #[test]
 fn a_pyramid_without_sub_stages_says_so() {
     let text = "name = \"x\"\n[[stage]]\nkind = \"pyramid\"\nlevels = 2\n";
-    let pipeline = PipelineSpec::parse(text, "x.toml")
-        .unwrap()
-        .build()
-        .unwrap();
-    let color = Image::from_fn(12, 10, 3, |x, y, c| {
-        0.1 + ((x + 2 * y + c) % 5) as f32 * 0.1
-    });
-    let (_, report) = pipeline
-        .run(
-            &mut RenderSet::new(color).into(),
-            &DenoiseOptions::default(),
-        )
-        .unwrap();
+    let spec = PipelineSpec::parse(text, "x.toml").unwrap();
+    let notes = notes_of(&spec);
     assert!(
-        report.notes.iter().any(|n| n.contains("no sub-stages")),
-        "{:?}",
-        report.notes
+        notes.iter().any(|n| n.contains("no sub-stages")),
+        "{notes:?}"
     );
 }
 
@@ -124,23 +125,12 @@ fn reuse_of_a_buffer_nobody_wrote_says_so() {
     let mut spec = PipelineSpec::builtin("full").unwrap();
     spec.apply_set("pyramid.level_noise.reuse=\"nonexistent\"")
         .unwrap();
-    let pipeline = spec.build().unwrap();
-    let color = Image::from_fn(16, 12, 3, |x, y, c| {
-        0.1 + ((x + 2 * y + c) % 5) as f32 * 0.1
-    });
-    let (_, report) = pipeline
-        .run(
-            &mut RenderSet::new(color).into(),
-            &DenoiseOptions::default(),
-        )
-        .unwrap();
+    let notes = notes_of(&spec);
     assert!(
-        report
-            .notes
+        notes
             .iter()
             .any(|n| n.contains("`reuse` names buffer `nonexistent`")),
-        "{:?}",
-        report.notes
+        "{notes:?}"
     );
 }
 
