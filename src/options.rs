@@ -51,6 +51,10 @@ pub struct DenoiseOptions {
     pub progress: Option<Arc<ProgressFn>>,
     /// Checked before every stage (see [`CancelToken`]).
     pub cancel: Option<CancelToken>,
+    /// Bytes the run may take at most: a run whose estimate
+    /// ([`crate::Pipeline::peak_bytes`]) is larger is refused before any stage runs. `None`: no
+    /// limit (the command line sets [`default_max_memory`]).
+    pub max_memory: Option<u64>,
 }
 
 impl DenoiseOptions {
@@ -87,8 +91,25 @@ impl fmt::Debug for DenoiseOptions {
             .field("progress_bar", &self.progress_bar)
             .field("progress", &self.progress.as_ref().map(|_| "callback"))
             .field("cancel", &self.cancel)
+            .field("max_memory", &self.max_memory)
             .finish()
     }
+}
+
+/// Three quarters of this machine's memory: what a run may take unless told otherwise (OIDN's
+/// `maxMemoryMB` plays the same part), leaving room for the rest of the machine.
+pub fn default_max_memory() -> u64 {
+    // SAFETY: sysconf only reads system values.
+    let (pages, size) = unsafe {
+        (
+            libc::sysconf(libc::_SC_PHYS_PAGES),
+            libc::sysconf(libc::_SC_PAGESIZE),
+        )
+    };
+    if pages <= 0 || size <= 0 {
+        return u64::MAX;
+    }
+    (pages as u64).saturating_mul(size as u64) / 4 * 3
 }
 
 /// A pool of `n` worker threads, `n` checked to be 1 to [`MAX_THREADS`].

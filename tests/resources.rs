@@ -274,3 +274,50 @@ fn the_walk_budget_follows_the_image_size() {
     assert!(!written);
     denoise_within(24, 24, &args, RSS_LIMIT_KIB);
 }
+
+/// A colour file of `w`×`h` pixels by its header, holding the data of a 4×4 image: what a small
+/// file declaring a huge image looks like (a ZIP of zeros is one).
+fn declaring(dir: &Path, w: i32, h: i32) -> std::path::PathBuf {
+    let path = dir.join("color.exr");
+    gsid::io::write_exr(&path, &gsid::Image::filled(4, 4, 3, 0.5)).unwrap();
+    let mut bytes = std::fs::read(&path).unwrap();
+    for name in [&b"dataWindow\0box2i\0"[..], &b"displayWindow\0box2i\0"[..]] {
+        let at = bytes.windows(name.len()).position(|b| b == name).unwrap() + name.len() + 4;
+        bytes[at + 8..at + 12].copy_from_slice(&(w - 1).to_le_bytes());
+        bytes[at + 12..at + 16].copy_from_slice(&(h - 1).to_le_bytes());
+    }
+    std::fs::write(&path, bytes).unwrap();
+    path
+}
+
+/// The memory a run will take is estimated from the colour's header before anything is decoded,
+/// and a run above `--max-memory` (default: three quarters of the machine's) is refused, naming
+/// the estimate: a 16384² image declared by a small file took gigabytes and then aborted.
+#[test]
+fn a_run_larger_than_the_memory_limit_is_refused_before_decoding() {
+    let (code, err, _, written) = denoise(3, 2, &["--max-memory", "1"]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("--max-memory") && err.contains("MiB"), "{err}");
+    assert!(!written);
+    let dir = tempfile::tempdir().unwrap();
+    let set = dir.path().join("set");
+    std::fs::create_dir(&set).unwrap();
+    declaring(&set, 16384, 16384);
+    let out = dir.path().join("o.exr");
+    let (code, err, rss) = run(&[
+        "denoise",
+        set.to_str().unwrap(),
+        "--max-memory",
+        "4000",
+        "-q",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("16384x16384") && err.contains("--max-memory"),
+        "{err}"
+    );
+    assert!(rss < 64 * 1024, "peaked at {rss} KiB");
+    assert!(!out.exists());
+}

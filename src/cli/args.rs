@@ -158,6 +158,10 @@ pub struct DenoiseArgs {
     /// Also write every other channel of the colour's EXR unchanged (a multilayer input's passes).
     #[arg(long)]
     pub keep_layers: bool,
+    /// Most memory the run may take, in MiB; a frame whose estimate is larger is refused before
+    /// it is decoded (default: three quarters of this machine's memory).
+    #[arg(long, value_name = "MIB")]
+    pub max_memory: Option<u64>,
 }
 
 fn compression(name: &str) -> std::result::Result<io::Compression, String> {
@@ -292,6 +296,14 @@ pub struct EvalArgs {
 }
 
 impl DenoiseArgs {
+    /// The memory limit in bytes: `--max-memory`, else three quarters of this machine's memory.
+    pub fn memory_limit(&self) -> u64 {
+        self.max_memory
+            .map_or_else(crate::options::default_max_memory, |mib| {
+                mib.saturating_mul(1 << 20)
+            })
+    }
+
     /// The `--save-buffer` requests as (buffer, file).
     pub fn saves(&self) -> Result<Vec<(String, PathBuf)>> {
         self.save_buffers

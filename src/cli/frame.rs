@@ -9,6 +9,7 @@ use super::report::{self, FrameReport, Outcome};
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::io::{self, PendingOutput};
+use crate::options::DenoiseOptions;
 use crate::pipeline::{Pipeline, OUTPUT_BUFFER};
 use crate::run::RunContext;
 
@@ -83,6 +84,14 @@ fn denoise_frame(
 ) -> Result<FrameReport> {
     let start = Instant::now();
     let saves = args.saves()?;
+    // Sized from the colour's header before anything is decoded: a run that cannot fit in memory
+    // is refused before it takes any.
+    let colour = (args.dir.as_deref())
+        .or(args.inputs.color.as_deref())
+        .or(args.inputs.ldr.as_deref());
+    if let Some((w, h)) = colour.and_then(io::colour_dims) {
+        pipeline.check_memory(w, h, args.memory_limit())?;
+    }
     let set = args.inputs.load(args.dir.as_deref())?;
     let outputs: Vec<&Path> = std::iter::once(args.output.as_path())
         .chain(saves.iter().map(|(_, p)| p.as_path()))
@@ -145,7 +154,11 @@ fn denoise_frame(
     let (width, height) = set.set.dims();
     let input = args.dir.as_ref().unwrap_or(&set.dir).display().to_string();
     let mut buffers = Buffers::from(set.set);
-    let (out, report) = pipeline.run(&mut buffers, &ctx.denoise_options(stage_progress))?;
+    let options = DenoiseOptions {
+        max_memory: Some(args.memory_limit()),
+        ..ctx.denoise_options(stage_progress)
+    };
+    let (out, report) = pipeline.run(&mut buffers, &options)?;
     let write_start = Instant::now();
     let mut saved = Vec::new();
     for (name, pending) in pending_saves {

@@ -92,6 +92,10 @@ pub trait Stage: Send + Sync {
     fn steps_per_pixel(&self) -> f64 {
         0.0
     }
+    /// How deep pyramids nest in this stage (0: none; 1: a pyramid of plain stages).
+    fn nesting(&self) -> usize {
+        0
+    }
     /// The work itself; `execute` has checked `requires`.
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64>;
 

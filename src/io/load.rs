@@ -48,6 +48,30 @@ pub fn is_render_set(dir: &Path) -> bool {
     find_buffer_file(dir, "color").map_or(true, |c| c.is_some())
 }
 
+/// The width and height of the colour `input` names (a render-set folder, a file, `file.exr:Layer`),
+/// read from its header alone, so a run can be sized before anything is decoded. `None` when it
+/// cannot be told: loading then says why.
+pub fn colour_dims(input: &Path) -> Option<(usize, usize)> {
+    let file = if input.is_dir() {
+        find_buffer_file(input, "color").ok()??
+    } else {
+        split_layer(input).0
+    };
+    let ext = file
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    match ext.as_str() {
+        "exr" => exr_file::declared_size(&file),
+        "pfm" => super::pfm::dims(&file),
+        "png" | "jpg" | "jpeg" => image::image_dimensions(&file)
+            .ok()
+            .map(|(w, h)| (w as usize, h as usize)),
+        _ => None,
+    }
+}
+
 /// Loads a render set folder: `color` is required, feature buffers are optional.
 pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
     if !dir.is_dir() {

@@ -42,6 +42,19 @@ fn is_space(b: u8) -> bool {
     matches!(b, b' ' | b'\t' | b'\n' | b'\r' | 0x0b | 0x0c)
 }
 
+/// The width and height a PFM file's header declares, reading only the header.
+pub(super) fn dims(path: &Path) -> Option<(usize, usize)> {
+    use std::io::Read;
+    let mut bytes = Vec::new();
+    std::fs::File::open(path)
+        .ok()?
+        .take(HEADER_MAX as u64)
+        .read_to_end(&mut bytes)
+        .ok()?;
+    let header = parse_header(&bytes).ok()?;
+    Some((header.width, header.height))
+}
+
 /// Parses the header at the start of `bytes` (at most [`HEADER_MAX`] of them are looked at).
 fn parse_header(bytes: &[u8]) -> std::result::Result<Header, String> {
     let bytes = &bytes[..bytes.len().min(HEADER_MAX)];

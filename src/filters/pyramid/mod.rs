@@ -174,6 +174,11 @@ impl Stage for PyramidStage {
         &self.id
     }
 
+    fn nesting(&self) -> usize {
+        let inner = self.levels.iter().flatten().map(|s| s.nesting()).max();
+        1 + inner.unwrap_or(0)
+    }
+
     /// Level l holds a quarter of level l − 1's pixels, so its walks count a quarter as much.
     fn steps_per_pixel(&self) -> f64 {
         let mut share = 1.0;

@@ -318,6 +318,13 @@ pub fn is_multilayer(path: &Path) -> Result<bool> {
     Ok(meta.headers.len() > 1 || meta.headers.iter().any(named))
 }
 
+/// The size of the file's first part's data window, from its header alone.
+pub fn declared_size(path: &Path) -> Option<(usize, usize)> {
+    let meta = exr::meta::MetaData::read_from_file(path, false).ok()?;
+    let size = meta.headers.first()?.layer_size;
+    Some((size.width(), size.height()))
+}
+
 /// How many channels the file's first part holds, from its header alone.
 pub fn channel_count(path: &Path) -> Result<usize> {
     let meta = exr::meta::MetaData::read_from_file(path, false)
