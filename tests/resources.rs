@@ -302,6 +302,33 @@ fn a_run_larger_than_the_memory_limit_is_refused_before_decoding() {
     assert_eq!(code, Some(2), "{err}");
     assert!(err.contains("--max-memory") && err.contains("MiB"), "{err}");
     assert!(!written);
+    // The studies run the pipeline many times on the set: checked the same way, before reading it.
+    let studies = tempfile::tempdir().unwrap();
+    let small = studies.path().join("set");
+    write_set(&small, &synthetic_set(3, 2));
+    let sweep_out = studies.path().join("sweep");
+    let s = small.to_str().unwrap();
+    for args in [
+        vec!["ablate", s, "--max-memory", "1", "-q"],
+        vec![
+            "sweep",
+            s,
+            "--max-memory",
+            "1",
+            "-p",
+            "gsid",
+            "--vary",
+            "gsid.walks=1,2",
+            "-q",
+            "--out",
+            sweep_out.to_str().unwrap(),
+        ],
+    ] {
+        let (code, err, _) = run(&args);
+        assert_eq!(code, Some(2), "{args:?}: {err}");
+        assert!(err.contains("--max-memory"), "{args:?}: {err}");
+    }
+    assert!(!sweep_out.exists());
     let dir = tempfile::tempdir().unwrap();
     let set = dir.path().join("set");
     std::fs::create_dir(&set).unwrap();

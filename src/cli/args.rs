@@ -93,9 +93,21 @@ pub struct RunOptions {
     /// Override a pipeline parameter, e.g. `--set gsid.walks=40` (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub sets: Vec<String>,
+    /// Most memory a run may take, in MiB; one whose estimate is larger is refused before the
+    /// input is decoded (default: three quarters of this machine's memory).
+    #[arg(long, value_name = "MIB")]
+    pub max_memory: Option<u64>,
 }
 
 impl RunOptions {
+    /// The memory limit in bytes: `--max-memory`, else three quarters of this machine's memory.
+    pub fn memory_limit(&self) -> u64 {
+        self.max_memory
+            .map_or_else(crate::options::default_max_memory, |mib| {
+                mib.saturating_mul(1 << 20)
+            })
+    }
+
     /// The pipeline with the overrides applied, as a spec (not yet built).
     pub fn spec(&self) -> Result<PipelineSpec> {
         let mut spec = PipelineSpec::resolve(&self.pipeline)?;
@@ -158,10 +170,6 @@ pub struct DenoiseArgs {
     /// Also write every other channel of the colour's EXR unchanged (a multilayer input's passes).
     #[arg(long)]
     pub keep_layers: bool,
-    /// Most memory the run may take, in MiB; a frame whose estimate is larger is refused before
-    /// it is decoded (default: three quarters of this machine's memory).
-    #[arg(long, value_name = "MIB")]
-    pub max_memory: Option<u64>,
 }
 
 fn compression(name: &str) -> std::result::Result<io::Compression, String> {
@@ -296,14 +304,6 @@ pub struct EvalArgs {
 }
 
 impl DenoiseArgs {
-    /// The memory limit in bytes: `--max-memory`, else three quarters of this machine's memory.
-    pub fn memory_limit(&self) -> u64 {
-        self.max_memory
-            .map_or_else(crate::options::default_max_memory, |mib| {
-                mib.saturating_mul(1 << 20)
-            })
-    }
-
     /// The `--save-buffer` requests as (buffer, file).
     pub fn saves(&self) -> Result<Vec<(String, PathBuf)>> {
         self.save_buffers

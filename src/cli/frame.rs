@@ -90,7 +90,7 @@ fn denoise_frame(
         .or(args.inputs.color.as_deref())
         .or(args.inputs.ldr.as_deref());
     if let Some((w, h)) = colour.and_then(io::colour_dims) {
-        pipeline.check_memory(w, h, args.memory_limit())?;
+        pipeline.check_memory(w, h, args.run.memory_limit())?;
     }
     let set = args.inputs.load(args.dir.as_deref())?;
     let outputs: Vec<&Path> = std::iter::once(args.output.as_path())
@@ -155,7 +155,7 @@ fn denoise_frame(
     let input = args.dir.as_ref().unwrap_or(&set.dir).display().to_string();
     let mut buffers = Buffers::from(set.set);
     let options = DenoiseOptions {
-        max_memory: Some(args.memory_limit()),
+        max_memory: Some(args.run.memory_limit()),
         ..ctx.denoise_options(stage_progress)
     };
     let (out, report) = pipeline.run(&mut buffers, &options)?;
