@@ -524,3 +524,46 @@ fn an_input_header_that_cannot_be_written_back_is_refused_before_the_work() {
     );
     assert!(!out.exists());
 }
+
+/// `denoise --help` describes every buffer flag and shows oidnDenoise's names as aliases (the
+/// feature flags had blank descriptions and the aliases were hidden).
+#[test]
+fn help_describes_every_buffer_flag_and_shows_the_oidn_aliases() {
+    let run = gsid(&["denoise", "--help"]);
+    assert_eq!(run.status.code(), Some(0));
+    let help = String::from_utf8_lossy(&run.stdout).into_owned();
+    for flag in [
+        "--albedo",
+        "--normal",
+        "--depth",
+        "--material",
+        "--shadow",
+        "--color-b",
+    ] {
+        let line = help
+            .lines()
+            .find(|l| l.trim_start().starts_with(flag))
+            .unwrap_or_else(|| panic!("{flag} not in help: {help}"));
+        let described = line.split("  ").filter(|p| !p.trim().is_empty()).count() > 1;
+        assert!(described, "{flag} has no description: `{line}`");
+    }
+    for alias in ["hdr", "alb", "nrm"] {
+        assert!(help.contains(alias), "alias {alias} not shown: {help}");
+    }
+}
+
+/// A missing input is "not found", naming it (it was "is not a render set folder").
+#[test]
+fn a_missing_input_is_not_found() {
+    let tmp = tempfile::tempdir().unwrap();
+    let missing = tmp.path().join("beauty.exr");
+    let out = tmp.path().join("o.exr");
+    let run = gsid(&[
+        "denoise",
+        missing.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_bad_input(&run, "beauty.exr");
+    assert!(stderr(&run).contains("not found"), "{}", stderr(&run));
+}

@@ -185,20 +185,25 @@ fn compression(name: &str) -> std::result::Result<io::Compression, String> {
 /// `--color`; clap does not extend that to a group of the two, so there is none.
 #[derive(clap::Args, Debug, Clone)]
 pub struct NamedInputs {
-    /// Colour (noisy beauty) image.
-    #[arg(long, alias = "hdr", conflicts_with = "dir")]
+    /// Colour (noisy beauty) image: EXR, PFM, or a multilayer EXR's colour pass (`oidnDenoise`: --hdr).
+    #[arg(long, visible_alias = "hdr", conflicts_with = "dir")]
     pub color: Option<PathBuf>,
     /// Colour as an 8-bit sRGB PNG or JPEG (linearised; not HDR, so highlights are clipped).
     #[arg(long, conflicts_with_all = ["dir", "color"])]
     pub ldr: Option<PathBuf>,
-    #[arg(long, alias = "alb", requires = "color")]
+    /// Albedo (surface colour without lighting; Blender's `Denoising Albedo`; oidnDenoise: --alb).
+    #[arg(long, visible_alias = "alb", requires = "color")]
     pub albedo: Option<PathBuf>,
-    #[arg(long, alias = "nrm", requires = "color")]
+    /// Shading normals (unit XYZ in any space; oidnDenoise: --nrm).
+    #[arg(long, visible_alias = "nrm", requires = "color")]
     pub normal: Option<PathBuf>,
+    /// Depth (distance or Z along the camera ray; one channel).
     #[arg(long, requires = "color")]
     pub depth: Option<PathBuf>,
+    /// Material weights: diffuse, reflective, refractive (RGB).
     #[arg(long, requires = "color")]
     pub material: Option<PathBuf>,
+    /// Shadow: the fraction of light samples from the first hit that reach a light, 0 to 1 (one channel).
     #[arg(long, requires = "color")]
     pub shadow: Option<PathBuf>,
     /// Variance of the pixel mean (RGB, or one channel used for all three).
@@ -207,6 +212,7 @@ pub struct NamedInputs {
     /// Colour from the first half of the samples (with --color-b, from the other half).
     #[arg(long, requires_all = ["color", "color_b"])]
     pub color_a: Option<PathBuf>,
+    /// Colour from the other half of the samples (with --color-a).
     #[arg(long, requires_all = ["color", "color_a"])]
     pub color_b: Option<PathBuf>,
     /// Which layer of a multilayer input is a buffer, e.g. `--map albedo=ViewLayer.DiffCol` (repeatable).

@@ -74,6 +74,9 @@ pub fn colour_dims(input: &Path) -> Option<(usize, usize)> {
 
 /// Loads a render set folder: `color` is required, feature buffers are optional.
 pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
+    if !dir.exists() {
+        return Err(Error::file(dir, "not found"));
+    }
     if !dir.is_dir() {
         return Err(Error::file(dir, "is not a render set folder"));
     }
