@@ -108,10 +108,34 @@ pub struct Encoding {
     pub half: bool,
 }
 
+/// A plain (not layered) colour's alpha, written as `A` beside a 3-channel image: its samples
+/// copied for a write, left out when only the header is wanted.
+fn plain_alpha(c: usize, frame: &Frame, with_samples: bool) -> Option<Plane> {
+    let alpha = frame
+        .alpha
+        .as_ref()
+        .filter(|_| c == 3 && frame.layers.is_empty())?;
+    Some(Plane {
+        desc: ChannelDescription {
+            name: Text::from("A"),
+            ..alpha.desc.clone()
+        },
+        samples: if with_samples {
+            alpha.samples.clone()
+        } else {
+            FlatSamples::F32(Vec::new())
+        },
+    })
+}
+
 /// The image's channel names (`R,G,B`, `Y` for one channel, or the colour's own names when its
-/// other layers are written too) and the stored planes written beside them: the alpha of a
-/// layered colour and the other layers. A plain colour's alpha, renamed `A`, is added by the caller.
-fn channel_names(c: usize, frame: &Frame) -> (Vec<String>, Vec<&Plane>) {
+/// other layers are written too) and the stored planes written beside them: `plain_alpha`, or
+/// a layered colour's alpha, then the other layers.
+fn layout<'a>(
+    c: usize,
+    frame: &'a Frame,
+    plain_alpha: Option<&'a Plane>,
+) -> (Vec<String>, Vec<&'a Plane>) {
     let layered = !frame.layers.is_empty();
     let names: Vec<String> = match c {
         3 if layered => frame.rgb.clone(),
@@ -119,7 +143,7 @@ fn channel_names(c: usize, frame: &Frame) -> (Vec<String>, Vec<&Plane>) {
         4 => ["R", "G", "B", "A"].map(String::from).to_vec(),
         _ => vec!["Y".to_string()],
     };
-    let mut planes: Vec<&Plane> = Vec::new();
+    let mut planes: Vec<&Plane> = plain_alpha.into_iter().collect();
     if let (3, Some(alpha), true) = (c, &frame.alpha, layered) {
         planes.push(alpha);
     }
@@ -146,20 +170,8 @@ pub fn check(
 ) -> exr::error::UnitResult {
     // Never written: its samples are the zero pages calloc hands out, not touched here.
     let image = Image::filled(dims.0, dims.1, channels, 0.0);
-    let (names, mut planes) = channel_names(channels, frame);
-    let renamed_alpha;
-    if let (3, Some(alpha)) = (channels, &frame.alpha) {
-        if frame.layers.is_empty() {
-            renamed_alpha = Plane {
-                desc: ChannelDescription {
-                    name: Text::from("A"),
-                    ..alpha.desc.clone()
-                },
-                samples: FlatSamples::F32(Vec::new()),
-            };
-            planes.insert(0, &renamed_alpha);
-        }
-    }
+    let alpha = plain_alpha(channels, frame, false);
+    let (names, planes) = layout(channels, frame, alpha.as_ref());
     let (header, _) = header(
         &image,
         &names,
@@ -181,20 +193,8 @@ pub fn write(
     encoding: Encoding,
 ) -> exr::error::UnitResult {
     let (w, c) = (image.width(), image.channels());
-    let renamed_alpha;
-    let (names, mut planes) = channel_names(c, frame);
-    if let (3, Some(alpha)) = (c, &frame.alpha) {
-        if frame.layers.is_empty() {
-            renamed_alpha = Plane {
-                desc: ChannelDescription {
-                    name: Text::from("A"),
-                    ..alpha.desc.clone()
-                },
-                samples: alpha.samples.clone(),
-            };
-            planes.insert(0, &renamed_alpha);
-        }
-    }
+    let alpha = plain_alpha(c, frame, true);
+    let (names, planes) = layout(c, frame, alpha.as_ref());
     let (header, sources) = header(
         image,
         &names,
