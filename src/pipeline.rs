@@ -60,7 +60,12 @@ impl Pipeline {
             .iter()
             .map(|s| filters::build(s).map_err(|e| e.in_file(&spec.origin)))
             .collect::<Result<Vec<_>>>()?;
-        let steps: f64 = stages.iter().map(|s| s.steps_per_pixel()).sum();
+        let pipeline = Pipeline {
+            name: spec.name.clone(),
+            description: spec.description.clone(),
+            stages,
+        };
+        let steps = pipeline.steps_per_pixel();
         if steps > MAX_STEPS_PER_PIXEL {
             return Err(Error::config(
                 format!("{}: walks", spec.origin),
@@ -69,11 +74,7 @@ impl Pipeline {
                 ),
             ));
         }
-        Ok(Pipeline {
-            name: spec.name.clone(),
-            description: spec.description.clone(),
-            stages,
-        })
+        Ok(pipeline)
     }
 
     /// Conditions the inputs (sanitising, brightness: [`Conditioning`]), runs every stage, and

@@ -12,15 +12,9 @@ use common::*;
 
 /// Runs gsid with `args` and a stdout whose reader is already closed, so the first write fails.
 fn into_closed_pipe(args: &[&str]) -> Output {
-    let mut fds = [0; 2];
-    // SAFETY: pipe writes two new descriptors into the array it is given.
-    assert_eq!(unsafe { libc::pipe(fds.as_mut_ptr()) }, 0);
-    // SAFETY: both descriptors were just created by pipe and are owned here alone.
-    let (read, write) = unsafe { (OwnedFd::from_raw_fd(fds[0]), OwnedFd::from_raw_fd(fds[1])) };
-    drop(read);
     gsid_command()
         .args(args)
-        .stdout(Stdio::from(write))
+        .stdout(Stdio::from(closed_pipe()))
         .stderr(Stdio::piped())
         .output()
         .expect("run gsid")
@@ -86,20 +80,10 @@ fn a_closed_pipe_ends_every_command_quietly_but_a_lost_image_fails() {
 
 #[test]
 fn a_full_stdout_is_one_error_line_and_exit_1() {
-    // SAFETY: geteuid has no preconditions.
-    if unsafe { libc::geteuid() } != 0 {
-        eprintln!("skipped: mknod needs root");
-        return;
-    }
     let tmp = tempfile::tempdir().unwrap();
-    // A node of its own: never the machine's /dev/full.
-    let full = tmp.path().join("full");
-    assert!(Command::new("mknod")
-        .arg(&full)
-        .args(["c", "1", "7"])
-        .status()
-        .unwrap()
-        .success());
+    let Some(full) = full_device(tmp.path()) else {
+        return;
+    };
     for cmd in commands(tmp.path()) {
         let out = std::fs::OpenOptions::new().write(true).open(&full).unwrap();
         let run = Command::new(env!("CARGO_BIN_EXE_gsid"))
@@ -115,7 +99,8 @@ fn a_full_stdout_is_one_error_line_and_exit_1() {
     }
 }
 
-/// A full device of the test's own (`mknod c 1 7`), or `None` where that needs root and we are not.
+/// A full device of the test's own (`mknod c 1 7`; never the machine's /dev/full), or `None`
+/// where that needs root and we are not.
 fn full_device(dir: &Path) -> Option<std::path::PathBuf> {
     // SAFETY: geteuid has no preconditions.
     if unsafe { libc::geteuid() } != 0 {
@@ -128,7 +113,8 @@ fn full_device(dir: &Path) -> Option<std::path::PathBuf> {
         .args(["c", "1", "7"])
         .status()
         .unwrap();
-    made.success().then_some(full)
+    assert!(made.success(), "mknod failed");
+    Some(full)
 }
 
 /// The write end of a pipe whose reader is already gone.

@@ -7,7 +7,7 @@ use clap::{Parser, Subcommand};
 
 use crate::error::{Error, Result};
 use crate::io;
-use crate::pipeline::{PipelineSpec, DEFAULT_PIPELINE};
+use crate::pipeline::{Pipeline, PipelineSpec, DEFAULT_PIPELINE};
 use crate::run::RunContext;
 
 #[derive(Parser, Debug)]
@@ -100,6 +100,23 @@ pub struct RunOptions {
 }
 
 impl RunOptions {
+    /// Refuses, before `input` is decoded, a run of any of `pipelines` whose estimate (sized from
+    /// the colour's header, read once) is above `--max-memory`; an input whose size cannot be
+    /// told is left to the loader to explain.
+    pub fn check_memory<'a>(
+        &self,
+        pipelines: impl IntoIterator<Item = &'a Pipeline>,
+        input: Option<&Path>,
+    ) -> Result<()> {
+        let Some((w, h)) = input.and_then(io::colour_dims) else {
+            return Ok(());
+        };
+        let limit = self.memory_limit();
+        pipelines
+            .into_iter()
+            .try_for_each(|p| p.check_memory(w, h, limit))
+    }
+
     /// The memory limit in bytes: `--max-memory`, else three quarters of this machine's memory.
     pub fn memory_limit(&self) -> u64 {
         self.max_memory
@@ -310,6 +327,14 @@ pub struct EvalArgs {
 }
 
 impl DenoiseArgs {
+    /// The colour input: the positional path (a folder, a file, a pattern), else `--color`, else
+    /// `--ldr`.
+    pub fn colour_input(&self) -> Option<&Path> {
+        (self.dir.as_deref())
+            .or(self.inputs.color.as_deref())
+            .or(self.inputs.ldr.as_deref())
+    }
+
     /// The `--save-buffer` requests as (buffer, file).
     pub fn saves(&self) -> Result<Vec<(String, PathBuf)>> {
         self.save_buffers

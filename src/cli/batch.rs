@@ -191,7 +191,7 @@ fn check_plan(frames: &[Frame]) -> Result<()> {
         let a = &frame.args;
         let named = a.inputs.slots().into_iter().filter_map(|(_, p)| p.as_ref());
         for path in a.dir.iter().chain(named) {
-            inputs.insert(resolved(&without_layer(path)), &frame.label);
+            inputs.insert(resolved(&io::split_layer(path).0), &frame.label);
         }
     }
     for frame in frames {
@@ -219,17 +219,6 @@ fn check_plan(frames: &[Frame]) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// The file of `file.exr:Layer` (the path as it is when it names a file or no such file exists).
-fn without_layer(path: &Path) -> PathBuf {
-    if path.exists() {
-        return path.to_path_buf();
-    }
-    match path.to_str().and_then(|s| s.rsplit_once(':')) {
-        Some((file, _)) if Path::new(file).is_file() => PathBuf::from(file),
-        _ => path.to_path_buf(),
-    }
 }
 
 /// One frame of a batch: its label (number or render set name) and the arguments of its run.
@@ -260,10 +249,7 @@ impl Batch {
             return Self::folders(args, dir).map(Some);
         }
         let color = args
-            .dir
-            .as_ref()
-            .or(args.inputs.color.as_ref())
-            .or(args.inputs.ldr.as_ref())
+            .colour_input()
             .ok_or_else(|| Error::config("--color", "is required with named inputs"))?;
         let Some(pattern) = pattern_of(color)? else {
             return Self::single(args).map(|()| None);

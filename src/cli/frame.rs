@@ -86,12 +86,7 @@ fn denoise_frame(
     let saves = args.saves()?;
     // Sized from the colour's header before anything is decoded: a run that cannot fit in memory
     // is refused before it takes any.
-    let colour = (args.dir.as_deref())
-        .or(args.inputs.color.as_deref())
-        .or(args.inputs.ldr.as_deref());
-    if let Some((w, h)) = colour.and_then(io::colour_dims) {
-        pipeline.check_memory(w, h, args.run.memory_limit())?;
-    }
+    args.run.check_memory([pipeline], args.colour_input())?;
     let set = args.inputs.load(args.dir.as_deref())?;
     let outputs: Vec<&Path> = std::iter::once(args.output.as_path())
         .chain(saves.iter().map(|(_, p)| p.as_path()))

@@ -38,9 +38,7 @@ pub(super) fn ablate(args: &AblateArgs, quiet: bool) -> Result<()> {
     let ctx = args.run.context(quiet)?;
     let spec = args.run.spec()?;
     let pipeline = spec.build()?;
-    if let Some((w, h)) = io::colour_dims(&args.dir) {
-        pipeline.check_memory(w, h, args.run.memory_limit())?;
-    }
+    args.run.check_memory([&pipeline], Some(&args.dir))?;
     let variants = ablate::variants(&spec)?;
     let set = io::load_input(&args.dir, &[])?;
     let reference = reference_for(&set, args.reference.as_ref())?;
@@ -89,13 +87,8 @@ pub(super) fn sweep(args: &SweepArgs, quiet: bool) -> Result<()> {
     base.build()?;
     let axes = sweep::parse_axes(&args.varies, &args.run.sets)?;
     let settings = sweep::settings(&base, &axes)?;
-    if let Some((w, h)) = io::colour_dims(&args.dir) {
-        for setting in &settings {
-            setting
-                .pipeline
-                .check_memory(w, h, args.run.memory_limit())?;
-        }
-    }
+    let pipelines = settings.iter().map(|s| &s.pipeline);
+    args.run.check_memory(pipelines, Some(&args.dir))?;
     let set = io::load_input(&args.dir, &[])?;
     let reference = reference_for(&set, args.reference.as_ref())?;
     // Made if missing; removed again (if empty) on failure or a signal, kept once filled.

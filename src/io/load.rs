@@ -9,7 +9,7 @@ use super::loaded_set::{
     both_halves, check_size, check_window, find_reference, LoadedSet, NoiseFiles,
 };
 use super::passes;
-use super::read::{ldr_note, read_framed, read_image};
+use super::read::{extension, ldr_note, read_framed, read_image};
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::render_set::{Feature, NoiseInputs, RenderSet};
@@ -57,12 +57,7 @@ pub fn colour_dims(input: &Path) -> Option<(usize, usize)> {
     } else {
         split_layer(input).0
     };
-    let ext = file
-        .extension()
-        .and_then(|e| e.to_str())
-        .unwrap_or("")
-        .to_ascii_lowercase();
-    match ext.as_str() {
+    match extension(&file).as_str() {
         "exr" => exr_file::declared_size(&file),
         "pfm" => super::pfm::dims(&file),
         "png" | "jpg" | "jpeg" => image::image_dimensions(&file)
@@ -214,7 +209,7 @@ pub fn load_input(path: &Path, maps: &[(String, String)]) -> Result<LoadedSet> {
 }
 
 /// Splits `file.exr:Layer` into the file and the layer; a path that exists is taken whole.
-fn split_layer(spec: &Path) -> (PathBuf, Option<String>) {
+pub fn split_layer(spec: &Path) -> (PathBuf, Option<String>) {
     if spec.is_file() {
         return (spec.to_path_buf(), None);
     }
@@ -229,10 +224,7 @@ fn split_layer(spec: &Path) -> (PathBuf, Option<String>) {
 /// input (a Blender file's `Combined` for the colour, never `AO`, which sorts first); any other file
 /// is read as it is. Returns the image, what an output keeps of the file, and its source as shown.
 fn read_buffer(file: &Path, buffer: &'static str, alpha: bool) -> Result<(Image, Frame, String)> {
-    let exr = file
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("exr"));
-    if exr && file.is_file() && exr_file::is_multilayer(file)? {
+    if extension(file) == "exr" && file.is_file() && exr_file::is_multilayer(file)? {
         let layers = passes::Layers::read(file)?;
         let picked = layers.for_buffer(file, buffer)?;
         let frame = layers.frame(file, &picked);

@@ -13,8 +13,13 @@ pub(super) fn prefix() -> String {
 }
 
 /// This machine's name, with anything but letters, digits, `.` and `_` replaced, so that names
-/// parse back unambiguously.
-fn host() -> String {
+/// parse back unambiguously; asked once a run.
+fn host() -> &'static str {
+    static HOST: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    HOST.get_or_init(machine_name)
+}
+
+fn machine_name() -> String {
     let mut buf = [0u8; 256];
     // SAFETY: gethostname writes at most `buf.len()` bytes into the buffer it is given.
     let ok = unsafe { libc::gethostname(buf.as_mut_ptr().cast(), buf.len()) } == 0;
@@ -96,7 +101,7 @@ mod tests {
     #[test]
     fn names_parse_back_to_their_host_and_process() {
         let name = format!("{}Ab3xYz.tmp", prefix());
-        assert_eq!(owner(&name), Some((host().as_str(), std::process::id())));
+        assert_eq!(owner(&name), Some((host(), std::process::id())));
         assert_eq!(
             owner(".gsid-farm_01.lan-42-q1w2e3.tmp"),
             Some(("farm_01.lan", 42))

@@ -203,7 +203,7 @@ impl Stage for PyramidStage {
 
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
         let (w, h) = buffers.require(&self.io.input)?.dims();
-        if self.levels.iter().all(Vec::is_empty) {
+        if self.children.is_empty() {
             // Allowed (it checks that splitting and blending give the input back), but never
             // what a user means: say so rather than pass it silently.
             ctx.note(format!(
