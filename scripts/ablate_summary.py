@@ -3,10 +3,12 @@
 For every fixture × spp this runs `target/release/gsid ablate fixtures/<name>/spp<N> --pipeline P --out
 rows.json` on the *whole* render set (so the noise rows can compare the image-only estimate with the
 renderer's `variance.exr`/half buffers where the set has them; mitsuba-cornell has none, so its two rows
-agree), and prints, per spp, each variant's mean SSIM and mean relMSE over the fixtures and its mean
+agree), or on a Blender multilayer fixture's file (`cycles-studio`, `cycles-glass`, `cycles-fog`, read
+from ../shared/fixtures when it exists, scored against its reference's `Combined`), and prints, per spp, each variant's mean SSIM and mean relMSE over the fixtures and its mean
 ΔSSIM to the pipeline as shipped. Seconds are left out (ablate times one run; see compare_denoisers).
 
     python3 scripts/ablate_summary.py                       # full, five fixtures, 1/4/16/64 spp
+    python3 scripts/ablate_summary.py --fixtures cycles-fog --rows reliability
     python3 scripts/ablate_summary.py --pipeline balanced --spp 1,4 --rows "fixed σ,without walks"
 
 Errors (a missing fixture or binary) give a one-line message and exit code 2.
@@ -20,12 +22,12 @@ import subprocess
 import tempfile
 from concurrent.futures import ThreadPoolExecutor
 
-from gsidscore import ALL_FIXTURES, ROOT, fail, parse_spps, require_gsid
+from gsidscore import ALL_FIXTURES, cases, fail, parse_spps, require_gsid
 
 
-def ablate(gsid, setdir, pipeline, out):
-    r = subprocess.run([gsid, "ablate", setdir, "--pipeline", pipeline, "--quiet", "--threads", "1",
-                        "--out", out], capture_output=True, text=True)
+def ablate(gsid, setdir, ref, pipeline, out):
+    r = subprocess.run([gsid, "ablate", str(setdir), "--reference", str(ref), "--pipeline", pipeline, "--quiet",
+                        "--threads", "1", "--out", out], capture_output=True, text=True)
     if r.returncode:
         fail(f"{setdir}: {r.stderr.strip().splitlines()[-1] if r.stderr.strip() else 'gsid ablate failed'}")
     with open(out) as f:
@@ -41,14 +43,12 @@ def main():
     a = p.parse_args()
     gsid = str(require_gsid(False))
     fixtures, spps = a.fixtures.split(","), parse_spps(a.spp)
+    found = {(fx, s): (setdir, ref) for fx, s, setdir, ref in cases(fixtures, spps)}
     cells = [(fx, s) for s in spps for fx in fixtures]
-    for fx, s in cells:
-        if not os.path.isdir(os.path.join(ROOT, "fixtures", fx, f"spp{s}")):
-            fail(f"fixtures/{fx}/spp{s}: no such render set")
     tmp = tempfile.mkdtemp()
     with ThreadPoolExecutor(2) as ex:
-        tables = list(ex.map(lambda c: ablate(gsid, os.path.join(ROOT, "fixtures", c[0], f"spp{c[1]}"),
-                                              a.pipeline, os.path.join(tmp, f"{c[0]}-{c[1]}.json")), cells))
+        tables = list(ex.map(lambda c: ablate(gsid, *found[c], a.pipeline,
+                                              os.path.join(tmp, f"{c[0]}-{c[1]}.json")), cells))
     wanted = [w for w in a.rows.split(",") if w]
     print(f"`gsid ablate --pipeline {a.pipeline}`, mean over {', '.join(fixtures)}: SSIM / relMSE (ΔSSIM)\n")
     print("| variant | " + " | ".join(f"{s} spp" for s in spps) + " |")

@@ -24,9 +24,9 @@ stdout (progress goes to stderr), then a summary table: mean SSIM and mean relMS
 per sample count and method, with each method's gap to OIDN (ΔSSIM, relMSE ratio); `--json PATH`
 also writes every row and the run's header as JSON.
 
-`cycles-studio` (a Blender Cycles multilayer render, not a default fixture: `--fixtures
-...,cycles-studio`) is read from ../shared/fixtures/cycles-studio/spp<N>.exr when that folder exists,
-else from fixtures/cycles-studio/ (only spp4 is bundled). gsid reads the multilayer file directly;
+The Blender Cycles multilayer renders `cycles-studio`, `cycles-glass` and `cycles-fog` are read from
+../shared/fixtures/NAME/spp<N>.exr when that folder exists, else from fixtures/NAME/ (only cycles-studio's
+spp4 is bundled). gsid reads the multilayer file directly;
 OIDN gets its `Combined`, `Denoising Albedo` and `Denoising Normal` passes, extracted here, and the
 noisy input and the reference are scored by their `Combined`.
 
@@ -35,8 +35,8 @@ Install and run, from the repository root (Python 3.11):
     pip install -r scripts/requirements-compare.txt && python3 scripts/compare_denoisers.py
     python3 scripts/compare_denoisers.py --fixtures mitsuba-cornell --spp 1,4,16,64 --pipelines sid gsid full
 
-Options: --fixtures a,b (default: mitsuba-cornell,cornell,caustics,textured,detail; also
-cycles-studio), --spp 1,4 (default 1,4,16,64), --pipelines NAME..., --noise-buffers, --runs N (timed
+Options: --fixtures a,b (default: mitsuba-cornell,cornell,caustics,textured,detail and the Blender
+renders cycles-studio,cycles-glass,cycles-fog), --spp 1,4 (default 1,4,16,64), --pipelines NAME..., --noise-buffers, --runs N (timed
 runs of OIDN and gsid, default 5), --bm3d-runs N (default 1; 0 or --no-bm3d skips BM3D),
 --bm3d-curve srgb|reinhard, --no-build, --json PATH, --keep DIR (keep the outputs).
 
@@ -87,10 +87,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from gsidscore import (ALL_FIXTURES, GSID_BUFFERS, LAYER_PASSES, NOISE_BUFFERS, ROOT, fail, gsid_eval,
+from gsidscore import (DEFAULT_FIXTURES, GSID_BUFFERS, LAYER_PASSES, NOISE_BUFFERS, ROOT, fail, gsid_eval,
                        gsid_pipelines, git_commit, linked_set, note, parse_spps, read_pass, read_rgb,
                        require_gsid, scored_case, write_rgb)
 from gsidscore import cases as fixture_cases
+from user_metrics import albedo_noise_correlation, brightness_percent, firefly_count
 
 DEFAULT_PIPELINES = ["fast", "balanced", "quality", "full"]
 
@@ -261,7 +262,7 @@ def cpu_model():
 
 def parse_args(argv):
     p = argparse.ArgumentParser(description="Compare gsid with Open Image Denoise and BM3D (see the file's docstring).")
-    p.add_argument("--fixtures", default=",".join(ALL_FIXTURES), help="comma-separated fixture names")
+    p.add_argument("--fixtures", default=",".join(DEFAULT_FIXTURES), help="comma-separated fixture names")
     p.add_argument("--spp", default="1,4,16,64", help="comma-separated sample counts (folders spp<N>)")
     p.add_argument("--pipelines", nargs="+", default=DEFAULT_PIPELINES, help="gsid pipeline names")
     p.add_argument("--runs", type=int, default=5, help="timed runs of OIDN and gsid (median)")
@@ -283,24 +284,28 @@ def parse_args(argv):
 
 
 def summary(rows, spps):
-    """Mean SSIM and relMSE over the fixtures per spp and method, and each method's gap to OIDN."""
-    lines = ["| spp | method | fixtures | mean SSIM | mean relMSE | ΔSSIM to OIDN | relMSE / OIDN's |",
-             "| --- | --- | --- | --- | --- | --- | --- |"]
+    """Means over the fixtures per spp and method, and each method's gap to OIDN."""
+    lines = ["| spp | method | fixtures | SSIM | PSNR | relMSE | ΔSSIM to OIDN | ΔPSNR | relMSE / OIDN's "
+             "| brightness | fireflies (sum) |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for spp in spps:
         at = [r for r in rows if r["spp"] == spp]
         methods = list(dict.fromkeys(r["method"] for r in at))
         means = {}
         for m in methods:
             rs = [r for r in at if r["method"] == m]
-            means[m] = (len(rs), statistics.mean(r["ssim"] for r in rs), statistics.mean(r["relmse"] for r in rs))
+            means[m] = (len(rs), *(statistics.mean(r[k] for r in rs) for k in ("ssim", "psnr", "relmse",
+                                                                                 "brightness_pct")),
+                        sum(r["fireflies"] for r in rs))
         oidn = next((means[m] for m in methods if m.startswith("OIDN")), None)
         for m in methods:
-            n, ssim, relmse = means[m]
+            n, ssim, psnr, relmse, bright, flies = means[m]
             if oidn and not m.startswith("OIDN") and n == oidn[0]:
-                gap = f"{ssim - oidn[1]:+.4f} | {relmse / oidn[2]:.2f}×"
+                gap = f"{ssim - oidn[1]:+.4f} | {psnr - oidn[2]:+.2f} | {relmse / oidn[3]:.2f}×"
             else:
-                gap = "— | —"
-            lines.append(f"| {spp} | {m} | {n} | {ssim:.4f} | {relmse:.5f} | {gap} |")
+                gap = "— | — | —"
+            lines.append(f"| {spp} | {m} | {n} | {ssim:.4f} | {psnr:.2f} | {relmse:.5f} | {gap} | {bright:+.1f} % "
+                         f"| {flies} |")
     return lines
 
 
@@ -364,22 +369,30 @@ def main(argv=None):
     outdir = Path(args.keep) if args.keep else Path(tmp.name)
     outdir.mkdir(parents=True, exist_ok=True)
 
-    def add(fx, spp, method, image, ref, seconds=None, process=None, **extra):
+    def add(fx, spp, method, image, ref, seconds=None, process=None, albedos=None, **extra):
         score = gsid_eval(gsid, image, ref)
+        out_rgb, ref_rgb = read_rgb(image), read_rgb(ref)
+        corr = albedo_noise_correlation(out_rgb, ref_rgb, *albedos) if albedos else None
         row = {"fixture": fx, "spp": spp, "method": method, "ssim": score["ssim"], "psnr": score["psnr"],
-               "relmse": score["relmse"], "seconds": seconds, "process_seconds": process, **extra}
+               "relmse": score["relmse"], "brightness_pct": brightness_percent(out_rgb, ref_rgb),
+               "fireflies": firefly_count(out_rgb, ref_rgb), "albedo_noise_corr": corr,
+               "seconds": seconds, "process_seconds": process, **extra}
         rows.append(row)
         secs = "" if seconds is None else f" {seconds:.3f} s"
-        note(f"  {fx} spp{spp} {method}: SSIM {row['ssim']:.4f} relMSE {row['relmse']:.5f}{secs}")
+        note(f"  {fx} spp{spp} {method}: SSIM {row['ssim']:.4f} PSNR {row['psnr']:.2f} relMSE {row['relmse']:.5f} "
+             f"bright {row['brightness_pct']:+.1f}% fireflies {row['fireflies']}{secs}")
 
     for fx, spp, setdir, ref in cases:
         note(f"{fx} spp{spp}:")
         stem = outdir / f"{fx}-spp{spp}"
+        albedos = None
+        if setdir.is_file():
+            albedos = (read_pass(setdir, *LAYER_PASSES["albedo"]), read_pass(ref, *LAYER_PASSES["albedo"]))
         gsid_input, noisy, ref = scored_case(setdir, ref, stem)
         inputs = {"": gsid_input}
         if args.noise_buffers and setdir.is_dir() and any((setdir / f"{b}.exr").is_file() for b in NOISE_BUFFERS):
             inputs["+var"] = linked_set(setdir, GSID_BUFFERS + NOISE_BUFFERS, Path(f"{stem}-set-var"))
-        add(fx, spp, "input (noisy)", noisy, ref)
+        add(fx, spp, "input (noisy)", noisy, ref, albedos=albedos)
 
         out = Path(f"{stem}-oidn.exr")
         secs, times = oidn_denoise(device, setdir, out, args.runs)
@@ -391,19 +404,19 @@ def main(argv=None):
             ptimes.append(time.perf_counter() - start)
             if proc.returncode != 0:
                 fail(f"one-shot OIDN process on {setdir}: {proc.stderr.strip()}", 1)
-        add(fx, spp, "OIDN (RT, hdr, albedo+normal)", out, ref, secs, statistics.median(ptimes),
+        add(fx, spp, "OIDN (RT, hdr, albedo+normal)", out, ref, secs, statistics.median(ptimes), albedos=albedos,
             times=times, process_times=ptimes)
 
         if args.bm3d_runs:
             out = Path(f"{stem}-bm3d.exr")
             secs, sigma, times = bm3d_denoise(setdir, out, args.bm3d_runs, args.bm3d_curve)
-            add(fx, spp, f"BM3D ({args.bm3d_curve})", out, ref, secs, times=times, sigma=sigma)
+            add(fx, spp, f"BM3D ({args.bm3d_curve})", out, ref, secs, albedos=albedos, times=times, sigma=sigma)
 
         for p in pipelines:
             for suffix, gsid_input in inputs.items():
                 out = Path(f"{stem}-gsid-{p}{suffix}.exr")
                 secs, times = gsid_denoise(gsid, gsid_input, p, out, args.runs)
-                add(fx, spp, f"gsid `{p}`{suffix}", out, ref, secs, secs, times=times)
+                add(fx, spp, f"gsid `{p}`{suffix}", out, ref, secs, secs, albedos=albedos, times=times)
 
     device.release()
     header["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
@@ -418,11 +431,14 @@ def main(argv=None):
     if skipped:
         print(f"Skipped gsid pipelines (not listed by `gsid pipelines`): {', '.join(skipped)}.")
     print()
-    print("| fixture | spp | method | SSIM | relMSE | seconds¹ | process s² |")
-    print("| --- | --- | --- | --- | --- | --- | --- |")
+    print("| fixture | spp | method | SSIM | PSNR | relMSE | brightness³ | fireflies³ | albedo-noise corr.³ "
+          "| seconds¹ | process s² |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for r in rows:
-        print(f"| {r['fixture']} | {r['spp']} | {r['method']} | {r['ssim']:.4f} | {r['relmse']:.5f} | "
-              f"{fmt(r['seconds'], '.3f')} | {fmt(r['process_seconds'], '.2f')} |")
+        print(f"| {r['fixture']} | {r['spp']} | {r['method']} | {r['ssim']:.4f} | {r['psnr']:.2f} | "
+              f"{r['relmse']:.5f} | {r['brightness_pct']:+.1f} % | {r['fireflies']} | "
+              f"{fmt(r['albedo_noise_corr'], '+.3f')} | {fmt(r['seconds'], '.3f')} | "
+              f"{fmt(r['process_seconds'], '.2f')} |")
     print()
     print()
     print("Means over the fixtures (gsid on colour + albedo + normal + depth; `+var` adds the noise buffers):")
@@ -438,6 +454,8 @@ def main(argv=None):
           f"pyoidn, reads color/albedo/normal, creates device and filter, runs once and writes the EXR; for gsid "
           f"the same figure as ¹. Scores: `gsid eval --json` against fixtures/NAME/reference.exr (SSIM on the "
           f"clipped sRGB view, relMSE on linear HDR)."
+          + " ³ scripts/user_metrics.py: mean luminance against the reference's; pixels above 4× a smooth "
+          "reference; correlation of the output's error with the albedo's noise (multilayer fixtures)."
           + (f" BM3D: σ̂ estimated from the noisy image (skimage estimate_sigma, channel mean) under the "
              f"{args.bm3d_curve} curve (its σ̂ is in the JSON)." if args.bm3d_runs else ""))
 

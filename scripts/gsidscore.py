@@ -15,7 +15,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 GSID = ROOT / "target" / "release" / "gsid"
 ALL_FIXTURES = ["mitsuba-cornell", "cornell", "caustics", "textured", "detail"]
-MULTILAYER_FIXTURES = ["cycles-studio"]
+MULTILAYER_FIXTURES = ["cycles-studio", "cycles-glass", "cycles-fog"]
+# What compare_denoisers.py runs by default: every folder fixture and the Blender renders.
+DEFAULT_FIXTURES = ALL_FIXTURES + MULTILAYER_FIXTURES
 # What gsid is given by default: what most renderers write and what OIDN's comparison gets.
 GSID_BUFFERS = ("color", "albedo", "normal", "depth")
 NOISE_BUFFERS = ("variance", "color_a", "color_b")
