@@ -328,6 +328,7 @@ fn ablate_prints_and_writes_the_table() {
     for variant in [
         "full (full)",
         "without outlier",
+        "without reliability",
         "without prefilter",
         "without pyramid",
         "without atrous",
@@ -344,9 +345,9 @@ fn ablate_prints_and_writes_the_table() {
         assert!(table.contains(variant), "missing {variant}: {table}");
     }
     let text = std::fs::read_to_string(&csv).unwrap();
-    // Header, then: full, six stages removed (the noise stage is not: later stages read it), the
+    // Header, then: full, seven stages removed (the noise stage is not: later stages read it), the
     // four noise rows, eight weights zeroed, plain SID.
-    assert_eq!(text.lines().count(), 1 + 20, "{text}");
+    assert_eq!(text.lines().count(), 1 + 21, "{text}");
     assert!(text.starts_with("variant,ssim,psnr,relmse,seconds,delta_ssim"));
     let bad = gsid(&[
         "ablate",

@@ -10,6 +10,7 @@ pub mod outlier;
 pub mod prefilter;
 pub mod pyramid;
 pub mod regress;
+pub mod reliability;
 pub mod stage;
 
 use crate::error::{Error, Result};
@@ -26,6 +27,7 @@ pub const KINDS: &[&str] = &[
     "prefilter",
     "pyramid",
     "regress",
+    "reliability",
 ];
 
 /// Builds a stage from its spec: a composite kind from its children and overrides, any other kind
@@ -53,6 +55,11 @@ pub fn build(spec: &StageSpec) -> Result<Box<dyn Stage>> {
         )?)),
         "pyramid" => Ok(Box::new(pyramid::PyramidStage::from_spec(spec, build)?)),
         "regress" => Ok(Box::new(regress::RegressStage::from_table(
+            id,
+            io,
+            params(),
+        )?)),
+        "reliability" => Ok(Box::new(reliability::ReliabilityStage::from_table(
             id,
             io,
             params(),

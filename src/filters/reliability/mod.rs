@@ -1,0 +1,159 @@
+//! The `reliability` stage: a feature buffer guides only as far as it is more than its own noise.
+//!
+//! At a few samples per pixel a feature buffer is a few-sample average too. Where its samples see
+//! different things (fog's medium and the surface behind it, depth of field, motion blur, hair) it is
+//! salt and pepper, and a filter that trusts it keeps that pattern in the output as if it were
+//! texture. This stage reads, per pixel, how much of the buffer's local variation its noise explains
+//! (`gate`: noise from directional second differences, signal from the variance of a directional
+//! median)
+//! and pulls the pixel towards its window's median in that proportion. Every later stage (prefilter,
+//! walks, à-trous, fit) then sees a buffer that differs between two pixels only where the surface
+//! does: a feature's say in the pixel difference follows its reliability, with no kernel changed.
+//! The reliability of each gated feature is kept as `<feature>_reliability` (for `--save-buffer`).
+//!
+//! ```toml
+//! [[stage]]
+//! kind = "reliability"
+//! features = ["albedo", "normal", "depth"]   # gated, each in place
+//! radius = 3                                 # window of the variances, (2·3+1)²
+//! ```
+//! A listed feature the render set does not have is skipped with a note.
+
+mod gate;
+mod median;
+mod variance;
+
+pub use gate::{gate, Domain, Params};
+pub use median::MEDIAN_RADIUS;
+
+use serde::{Deserialize, Serialize};
+
+use crate::buffers::Buffers;
+use crate::error::{Error, Result};
+use crate::filters::stage::{parse_params, Context, Stage, StageIo};
+use crate::render_set::Feature;
+
+/// Largest window radius.
+pub const MAX_RADIUS: usize = 8;
+
+/// Parameters of the `reliability` stage (keys of its table in a pipeline file).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReliabilityParams {
+    /// Feature buffers gated: any of albedo, normal, material, shadow, depth.
+    pub features: Vec<String>,
+    /// Radius of the window the noise and the signal are read over. Larger reads both more surely
+    /// and blurs the reliability across edges (time grows with it, linearly).
+    pub radius: usize,
+}
+
+impl Default for ReliabilityParams {
+    fn default() -> Self {
+        ReliabilityParams {
+            features: vec!["albedo".into(), "normal".into(), "depth".into()],
+            radius: 3,
+        }
+    }
+}
+
+impl ReliabilityParams {
+    /// Checks every key against its allowed range; the error names the key.
+    pub fn validate(&self) -> Result<()> {
+        for (i, name) in self.features.iter().enumerate() {
+            if Feature::from_name(name).is_none() {
+                let known = Feature::ALL.map(Feature::name).join(", ");
+                return Err(Error::config(
+                    "features",
+                    format!("`{name}` is not a feature buffer (known: {known})"),
+                ));
+            }
+            if self.features[..i].contains(name) {
+                return Err(Error::config(
+                    "features",
+                    format!("`{name}` is listed twice"),
+                ));
+            }
+        }
+        if !(1..=MAX_RADIUS).contains(&self.radius) {
+            return Err(Error::range("radius", self.radius, "1 to 8"));
+        }
+        Ok(())
+    }
+
+    /// The kernel's settings. The noise counts twice: a difference between two pixels carries
+    /// the noise of both.
+    pub fn kernel_params(&self) -> Params {
+        Params {
+            radius: self.radius,
+            pair_noise: 2.0,
+        }
+    }
+}
+
+/// The buffer name a feature's reliability is kept under.
+pub fn reliability_name(feature: Feature) -> String {
+    format!("{}_reliability", feature.name())
+}
+
+pub struct ReliabilityStage {
+    id: String,
+    features: Vec<Feature>,
+    pub params: ReliabilityParams,
+}
+
+impl ReliabilityStage {
+    pub fn from_table(id: &str, _io: StageIo, table: toml::Table) -> Result<Self> {
+        let params: ReliabilityParams = parse_params(id, table)?;
+        params.validate().map_err(|e| e.in_context(id))?;
+        let features = params
+            .features
+            .iter()
+            .filter_map(|n| Feature::from_name(n))
+            .collect();
+        Ok(ReliabilityStage {
+            id: id.to_string(),
+            features,
+            params,
+        })
+    }
+}
+
+impl Stage for ReliabilityStage {
+    fn id(&self) -> &str {
+        &self.id
+    }
+
+    fn requires(&self) -> Vec<String> {
+        Vec::new()
+    }
+
+    fn writes(&self) -> Vec<String> {
+        self.features
+            .iter()
+            .flat_map(|&f| [f.name().to_string(), reliability_name(f)])
+            .collect()
+    }
+
+    fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
+        let p = self.params.kernel_params();
+        for &feature in &self.features {
+            let Some(img) = buffers.features().get(feature) else {
+                ctx.note(format!(
+                    "{}: no {} buffer; not gated",
+                    self.id,
+                    feature.name()
+                ));
+                continue;
+            };
+            let domain = match feature {
+                Feature::Normal => Domain::Normal,
+                Feature::Depth => Domain::Log,
+                Feature::Albedo | Feature::Material | Feature::Shadow => Domain::Linear,
+            };
+            let (gated, rho) = gate(img, domain, p);
+            buffers.insert(feature.name(), gated)?;
+            buffers.insert(reliability_name(feature), rho)?;
+        }
+        Ok(0)
+    }
+}
