@@ -107,6 +107,8 @@ pub struct PipelineSpec {
     pub stages: Vec<StageSpec>,
     /// Where it came from (a path or `built-in`), for error messages.
     pub origin: String,
+    /// `temporal = R`: frames each side a frame sequence is merged over (`--temporal` overrides).
+    pub temporal: Option<usize>,
 }
 
 /// The level a `levelN` key names (`levels` is a parameter, not a level).
@@ -390,10 +392,25 @@ impl PipelineSpec {
             .map_err(ctx)?
             .unwrap_or_default();
         let raw_stages = root.remove("stage");
+        let temporal = match root.remove("temporal") {
+            None => None,
+            Some(toml::Value::Integer(r)) if (0..=crate::temporal::MAX_RADIUS as i64).contains(&r) => {
+                Some(r as usize)
+            }
+            Some(other) => {
+                return Err(Error::config(
+                    format!("{origin}: temporal"),
+                    format!(
+                        "is {other}, allowed range is 0 to {} frames each side",
+                        crate::temporal::MAX_RADIUS
+                    ),
+                ))
+            }
+        };
         if let Some(key) = root.keys().next() {
             return Err(Error::config(
                 format!("{origin}: {key}"),
-                "unknown top-level key (expected name, description, stage)",
+                "unknown top-level key (expected name, description, temporal, stage)",
             ));
         }
         let raw_stages = match raw_stages {
@@ -417,6 +434,7 @@ impl PipelineSpec {
             description,
             stages,
             origin: origin.to_string(),
+            temporal,
         })
     }
 
