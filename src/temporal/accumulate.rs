@@ -120,7 +120,7 @@ fn patch_agreement(
 }
 
 /// How far above the frame's typical noise (relative to brightness) a pixel's estimate may lie.
-const NOISE_CAP: f64 = 8.0;
+const NOISE_CAP: f64 = 16.0;
 
 /// The variance of one pixel of `color`, from the image (the noise stage's estimate), capped at
 /// [`NOISE_CAP`] times the frame's median noise relative to the local brightness. Why: the

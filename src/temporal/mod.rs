@@ -60,6 +60,7 @@ impl Shot {
         self.window.slide(t, load)?;
         let mut notes = Vec::new();
         let mut numbers = Vec::new();
+        let mut outside = Vec::new();
         let mut sets = Vec::new();
         let mut slots = Vec::new();
         for (n, held) in self.window.frames(t) {
@@ -80,6 +81,7 @@ impl Shot {
                 }
             };
             numbers.push(n);
+            outside.push(matches!(held, Held::Outside));
             slots.push(Slot {
                 present: set.is_some(),
                 motion: set.and_then(|s| s.motion.as_ref()),
@@ -121,8 +123,9 @@ impl Shot {
         let shares: Vec<String> = numbers
             .iter()
             .zip(&merged.weights)
-            .filter(|(&n, _)| n != t)
-            .map(|(n, w)| format!("{n} {:.0} %", 100.0 * w))
+            .zip(&outside)
+            .filter(|((&n, _), &out)| n != t && !out)
+            .map(|((n, w), _)| format!("{n} {:.0} %", 100.0 * w))
             .collect();
         notes.push(format!(
             "temporal: merged with frames (mean weight) {}",
