@@ -294,6 +294,9 @@ impl StageSpec {
 /// Largest pipeline file read: the shipped ones are a few KiB, and 256 stages fit in far less.
 pub const MAX_PIPELINE_BYTES: u64 = 1 << 20;
 
+/// Most frames each side `temporal = R` (and `--temporal`) may merge: 8 holds 17 frames in memory.
+pub const MAX_TEMPORAL_RADIUS: usize = 8;
+
 /// Most stages one pipeline file may hold, sub-stages included: far more than any pipeline runs.
 pub const MAX_STAGES: usize = 256;
 
@@ -394,7 +397,7 @@ impl PipelineSpec {
         let raw_stages = root.remove("stage");
         let temporal = match root.remove("temporal") {
             None => None,
-            Some(toml::Value::Integer(r)) if (0..=crate::temporal::MAX_RADIUS as i64).contains(&r) => {
+            Some(toml::Value::Integer(r)) if (0..=MAX_TEMPORAL_RADIUS as i64).contains(&r) => {
                 Some(r as usize)
             }
             Some(other) => {
@@ -402,7 +405,7 @@ impl PipelineSpec {
                     format!("{origin}: temporal"),
                     format!(
                         "is {other}, allowed range is 0 to {} frames each side",
-                        crate::temporal::MAX_RADIUS
+                        MAX_TEMPORAL_RADIUS
                     ),
                 ))
             }

@@ -67,9 +67,21 @@ fn a_frame_is_the_same_bits_in_one_run_or_in_chunks_on_any_thread_count() {
     let whole = tmp.path().join("whole");
     let chunks = tmp.path().join("chunks");
     let shot = Path::new(ANIM);
-    ok(&run(shot, &whole, &["-q", "--temporal", "2", "--threads", "2"]));
+    ok(&run(
+        shot,
+        &whole,
+        &["-q", "--temporal", "2", "--threads", "2"],
+    ));
     for frames in ["1-2", "3", "4-5"] {
-        let extra = ["-q", "--temporal", "2", "--threads", "1", "--frames", frames];
+        let extra = [
+            "-q",
+            "--temporal",
+            "2",
+            "--threads",
+            "1",
+            "--frames",
+            frames,
+        ];
         ok(&run(shot, &chunks, &extra));
     }
     let (w, c) = (bytes(&whole), bytes(&chunks));
@@ -105,7 +117,14 @@ fn a_missing_neighbour_is_named_and_left_out_or_fails_under_strict() {
     let refused = run(
         &shot,
         &strict,
-        &["-q", "--temporal", "1", "--temporal-strict", "--frames", "4"],
+        &[
+            "-q",
+            "--temporal",
+            "1",
+            "--temporal-strict",
+            "--frames",
+            "4",
+        ],
     );
     assert_bad_input(&refused, "frame.0003.exr");
     assert!(files_in(&strict).is_empty(), "a refused frame wrote output");
@@ -116,7 +135,12 @@ fn a_shot_without_a_motion_pass_is_said_to_be_assumed_static_once() {
     let tmp = tempfile::tempdir().unwrap();
     let out = run(Path::new(STATIC), tmp.path(), &["--temporal", "1"]);
     ok(&out);
-    assert_eq!(stderr(&out).matches("assumed static").count(), 1, "{}", stderr(&out));
+    assert_eq!(
+        stderr(&out).matches("assumed static").count(),
+        1,
+        "{}",
+        stderr(&out)
+    );
     let moving = run(Path::new(ANIM), &tmp.path().join("a"), &["--temporal", "1"]);
     ok(&moving);
     assert!(!stderr(&moving).contains("assumed static"));
@@ -205,14 +229,46 @@ fn neighbours_reprojected_by_the_vector_pass_line_up_with_the_frame() {
     for t in 1..=5 {
         moving_frame(&spp.join(format!("frame.{t:04}.exr")), t, 5);
     }
-    let out = run(tmp.path(), &tmp.path().join("out"), &["--temporal", "2", "--frames", "3"]);
+    let out = run(
+        tmp.path(),
+        &tmp.path().join("out"),
+        &["--temporal", "2", "--frames", "3"],
+    );
     ok(&out);
     let got = weights(&stderr(&out), 3);
-    assert_eq!(got.iter().map(|(n, _)| *n).collect::<Vec<_>>(), [1, 2, 4, 5]);
+    assert_eq!(
+        got.iter().map(|(n, _)| *n).collect::<Vec<_>>(),
+        [1, 2, 4, 5]
+    );
     // Every pixel whose surface is in the neighbour lines up: all but the border it left by.
     for (n, w) in got {
         let shift = 3i64.abs_diff(n as i64) as f64;
         let inside = 100.0 * (24.0 - 2.0 * shift) * (24.0 - shift) / (24.0 * 24.0);
-        assert!(w >= inside - 2.0, "frame {n}: weight {w} %, {inside:.0} % of its pixels are in it");
+        assert!(
+            w >= inside - 2.0,
+            "frame {n}: weight {w} %, {inside:.0} % of its pixels are in it"
+        );
     }
+}
+
+#[test]
+fn a_pipeline_key_turns_it_on_and_the_flag_overrides_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let full = std::fs::read_to_string("pipelines/full.toml").unwrap();
+    let keyed = tmp.path().join("keyed.toml");
+    std::fs::write(&keyed, format!("temporal = 1\n{full}")).unwrap();
+    let keyed = keyed.to_str().unwrap();
+    let on = run(Path::new(STATIC), &tmp.path().join("on"), &["-p", keyed]);
+    ok(&on);
+    assert!(stderr(&on).contains("temporal: merged"), "{}", stderr(&on));
+    // `--temporal 0` is each frame alone: the same bits as a run without the key or the flag.
+    let off = tmp.path().join("off");
+    ok(&run(Path::new(STATIC), &off, &["-q", "-p", keyed, "--temporal", "0"]));
+    let plain = tmp.path().join("plain");
+    ok(&run(Path::new(STATIC), &plain, &["-q"]));
+    assert!(bytes(&off) == bytes(&plain), "--temporal 0 changed the bits");
+    let bad = tmp.path().join("bad.toml");
+    std::fs::write(&bad, format!("temporal = 99\n{full}")).unwrap();
+    let refused = run(Path::new(STATIC), &tmp.path().join("x"), &["-p", bad.to_str().unwrap()]);
+    assert_bad_input(&refused, "temporal");
 }

@@ -10,7 +10,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use super::args::DenoiseArgs;
-use super::frame::{denoise_or_skip, resolved};
+use super::frame::{denoise_or_skip, resolved, Loader};
 use super::report::{Entry, Outcome, PipelineJson, SequenceJson};
 use super::stdout::print_json;
 use crate::error::{Error, Result};
@@ -466,8 +466,7 @@ impl Batch {
                 let n = frame.number.expect("a pattern's frame");
                 shot.frame(n, &|k| paths.load(k, *range))
             };
-            let load: Option<&mut dyn FnMut(&DenoiseArgs) -> Result<io::LoadedSet>> =
-                if temporal { Some(&mut merged) } else { None };
+            let load: Option<Loader> = if temporal { Some(&mut merged) } else { None };
             let outcome = match denoise_or_skip(&frame.args, pipeline, ctx, false, &say, load) {
                 Ok(outcome) => outcome,
                 Err(e) => {

@@ -53,6 +53,9 @@ fn check_outputs(inputs: &[(String, PathBuf)], outputs: &[&Path]) -> Result<()> 
     Ok(())
 }
 
+/// Reads a frame's render set in place of its own files (a temporal run's merged frame).
+pub(super) type Loader<'a> = &'a mut dyn FnMut(&DenoiseArgs) -> Result<io::LoadedSet>;
+
 /// Denoises the render set `args` names, or skips it when `--skip-existing` finds its output (the
 /// `-o` file, written last) already there. `say` gets each line for the user as soon as it is known.
 pub(super) fn denoise_or_skip(
@@ -61,7 +64,7 @@ pub(super) fn denoise_or_skip(
     ctx: &RunContext,
     stage_progress: bool,
     say: &dyn Fn(&str),
-    load: Option<&mut dyn FnMut(&DenoiseArgs) -> Result<io::LoadedSet>>,
+    load: Option<Loader>,
 ) -> Result<Outcome> {
     let output = &args.output;
     if args.skip_existing && output.as_os_str() != io::STDOUT && output.is_file() {
@@ -83,7 +86,7 @@ fn denoise_frame(
     ctx: &RunContext,
     stage_progress: bool,
     say: &dyn Fn(&str),
-    load: Option<&mut dyn FnMut(&DenoiseArgs) -> Result<io::LoadedSet>>,
+    load: Option<Loader>,
 ) -> Result<FrameReport> {
     let start = Instant::now();
     let saves = args.saves()?;

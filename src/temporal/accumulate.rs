@@ -197,7 +197,15 @@ pub fn merge(
             for x in 0..w {
                 let px = &mut row[x * width..(x + 1) * width];
                 merge_pixel(
-                    base, &noise, &features, &used, centre, (x, y), variance, px, &mut totals,
+                    base,
+                    &noise,
+                    &features,
+                    &used,
+                    centre,
+                    (x, y),
+                    variance,
+                    px,
+                    &mut totals,
                 );
             }
             totals
@@ -285,8 +293,16 @@ fn merge_pixel(
         let mut offset = 3;
         for &(f, c) in features {
             // A neighbour without the feature lends the centre's value, so the mean stays whole.
-            let img = set.features.get(f).or(base.features.get(f)).expect("present");
-            let at = if set.features.contains(f) { pos } else { [x as f32, y as f32] };
+            let img = set
+                .features
+                .get(f)
+                .or(base.features.get(f))
+                .expect("present");
+            let at = if set.features.contains(f) {
+                pos
+            } else {
+                [x as f32, y as f32]
+            };
             bilinear(img, at, &mut sample);
             for k in 0..c {
                 sums[offset + k] += weight * sample[k];
@@ -331,10 +347,20 @@ mod tests {
 
     #[test]
     fn agreeing_frames_average_and_a_different_surface_is_left_out() {
-        let noisy = |k: usize| move |x: usize, y: usize| 0.5 + 0.01 * (((x * 7 + y * 3 + k) % 5) as f32 - 2.0);
-        let (a, b, c) = (frame(noisy(0), 0.5), frame(noisy(1), 0.5), frame(noisy(2), 0.5));
+        let noisy = |k: usize| {
+            move |x: usize, y: usize| 0.5 + 0.01 * (((x * 7 + y * 3 + k) % 5) as f32 - 2.0)
+        };
+        let (a, b, c) = (
+            frame(noisy(0), 0.5),
+            frame(noisy(1), 0.5),
+            frame(noisy(2), 0.5),
+        );
         let merged = merge(&[Some(&a), Some(&b), Some(&c)], &still(3), 1, true);
-        assert!(merged.weights.iter().all(|&w| w > 0.99), "{:?}", merged.weights);
+        assert!(
+            merged.weights.iter().all(|&w| w > 0.99),
+            "{:?}",
+            merged.weights
+        );
         let want = (a.color.at(3, 3)[0] + b.color.at(3, 3)[0] + c.color.at(3, 3)[0]) as f64 / 3.0;
         assert!((merged.set.color.at(3, 3)[0] as f64 - want).abs() < 1e-6);
         assert!(merged.set.noise.variance.unwrap().all_finite());

@@ -15,8 +15,8 @@ use accumulate::merge;
 use motion::{track, Slot};
 use window::{Held, Window};
 
-/// Most frames on each side: 8 makes a window of 17 frames in memory.
-pub const MAX_RADIUS: usize = 8;
+/// Most frames on each side (the pipeline key's bound too).
+pub use crate::spec::MAX_TEMPORAL_RADIUS as MAX_RADIUS;
 
 /// A shot denoised frame by frame with its neighbours.
 pub struct Shot {

@@ -47,8 +47,7 @@ pub fn track(slots: &[Slot], centre: usize, (w, h): (usize, usize)) -> Vec<Optio
                     m.fore.as_ref()
                 }
             });
-            let (Some(offsets), true, Some(here)) = (offsets, slots[to].present, &out[from])
-            else {
+            let (Some(offsets), true, Some(here)) = (offsets, slots[to].present, &out[from]) else {
                 break;
             };
             out[to] = Some(step(here, offsets));
@@ -105,7 +104,11 @@ mod tests {
         assert_eq!(t[0].as_ref().unwrap()[9], [0.0, 1.0]);
         assert_eq!(t[2].as_ref().unwrap()[9], [2.0, 1.5]);
         assert_eq!(t[3].as_ref().unwrap()[9], [3.0, 2.0]);
-        let gap = track(&[slot(true), slot(true), slot(false), slot(true)], 1, (8, 8));
+        let gap = track(
+            &[slot(true), slot(true), slot(false), slot(true)],
+            1,
+            (8, 8),
+        );
         assert!(gap[2].is_none() && gap[3].is_none() && gap[0].is_some());
     }
 

@@ -31,11 +31,7 @@ impl Window {
 
     /// Moves the window to centre `t`: drops the frames outside it and loads the new ones with
     /// `load` (`None`: outside the shot). A centre that cannot be read is its frame's error.
-    pub fn slide(
-        &mut self,
-        t: u64,
-        load: &dyn Fn(u64) -> Option<Result<LoadedSet>>,
-    ) -> Result<()> {
+    pub fn slide(&mut self, t: u64, load: &dyn Fn(u64) -> Option<Result<LoadedSet>>) -> Result<()> {
         let (first, last) = (t.saturating_sub(self.radius), t.saturating_add(self.radius));
         self.held.retain(|&n, _| (first..=last).contains(&n));
         // A centre that failed as a neighbour is read again, for its own error.
@@ -66,7 +62,9 @@ impl Window {
     /// The window's frames in order, from t−R (fewer near frame 0).
     pub fn frames(&self, t: u64) -> impl Iterator<Item = (u64, &Held)> {
         let first = t.saturating_sub(self.radius);
-        self.held.range(first..=t.saturating_add(self.radius)).map(|(&n, h)| (n, h))
+        self.held
+            .range(first..=t.saturating_add(self.radius))
+            .map(|(&n, h)| (n, h))
     }
 
     /// Frames held now (for tests of the bound).
