@@ -263,12 +263,23 @@ fn a_pipeline_key_turns_it_on_and_the_flag_overrides_it() {
     assert!(stderr(&on).contains("temporal: merged"), "{}", stderr(&on));
     // `--temporal 0` is each frame alone: the same bits as a run without the key or the flag.
     let off = tmp.path().join("off");
-    ok(&run(Path::new(STATIC), &off, &["-q", "-p", keyed, "--temporal", "0"]));
+    ok(&run(
+        Path::new(STATIC),
+        &off,
+        &["-q", "-p", keyed, "--temporal", "0"],
+    ));
     let plain = tmp.path().join("plain");
     ok(&run(Path::new(STATIC), &plain, &["-q"]));
-    assert!(bytes(&off) == bytes(&plain), "--temporal 0 changed the bits");
+    assert!(
+        bytes(&off) == bytes(&plain),
+        "--temporal 0 changed the bits"
+    );
     let bad = tmp.path().join("bad.toml");
     std::fs::write(&bad, format!("temporal = 99\n{full}")).unwrap();
-    let refused = run(Path::new(STATIC), &tmp.path().join("x"), &["-p", bad.to_str().unwrap()]);
+    let refused = run(
+        Path::new(STATIC),
+        &tmp.path().join("x"),
+        &["-p", bad.to_str().unwrap()],
+    );
     assert_bad_input(&refused, "temporal");
 }

@@ -122,12 +122,13 @@ fn patch_agreement(
 /// How far above the frame's typical noise (relative to brightness) a pixel's estimate may lie.
 const NOISE_CAP: f64 = 16.0;
 
-/// The variance of one pixel of `color`, from the image (the noise stage's estimate), capped at
+/// The variance of one pixel of `color`, from the image (the noise stage's estimate), as it is and capped at
 /// [`NOISE_CAP`] times the frame's median noise relative to the local brightness. Why: the
 /// estimate takes a mirror's sharp reflection for noise, and a reflection that moved unlike its
 /// surface's motion pass would then pass for noise too.
-fn capped_noise(color: &Image, features: &crate::render_set::FeatureSet) -> Image {
-    let mut noise = crate::filters::noise::estimate(color, features);
+fn capped_noise(color: &Image, features: &crate::render_set::FeatureSet) -> (Image, Image) {
+    let estimate = crate::filters::noise::estimate(color, features);
+    let mut noise = estimate.clone();
     let (w, h) = color.dims();
     let level = |x: usize, y: usize| {
         let (m, _) = window(color, (x, y));
@@ -142,7 +143,7 @@ fn capped_noise(color: &Image, features: &crate::render_set::FeatureSet) -> Imag
         .filter(|r| r.is_finite())
         .collect();
     if ratios.is_empty() {
-        return noise;
+        return (estimate, noise);
     }
     ratios.sort_unstable_by(f64::total_cmp);
     let median = ratios[ratios.len() / 2];
@@ -150,7 +151,7 @@ fn capped_noise(color: &Image, features: &crate::render_set::FeatureSet) -> Imag
         let cap = (NOISE_CAP * median * level(i % w, i / w)) as f32;
         noise.pixel_mut(i).iter_mut().for_each(|v| *v = v.min(cap));
     }
-    noise
+    (estimate, noise)
 }
 
 /// The merged frame: colour and features as weighted means over the window, and what each
@@ -164,7 +165,7 @@ pub struct Merged {
 /// Merges the window `frames` (in frame order, `None` where missing) at the centre frame's
 /// pixels; `tracks` gives each frame's positions of those pixels (`None`: unreachable). With
 /// `variance`, the result carries the variance of each pixel's merged mean, from the spread of the
-/// frames it took (the centre's 3×3 spread where it took too few to tell).
+/// frames it took (the centre's estimated noise where it took too few to tell).
 pub fn merge(
     frames: &[Option<&RenderSet>],
     tracks: &[Option<Vec<[f32; 2]>>],
@@ -187,7 +188,7 @@ pub fn merge(
         .enumerate()
         .filter_map(|(j, (f, t))| Some((j, (*f)?, t.as_deref()?)))
         .collect();
-    let noise = capped_noise(&base.color, &base.features);
+    let (estimate, noise) = capped_noise(&base.color, &base.features);
     let mut out = vec![0.0f32; w * h * width];
     let row_weights: Vec<Vec<f64>> = out
         .par_chunks_mut(w * width)
@@ -198,6 +199,7 @@ pub fn merge(
                 let px = &mut row[x * width..(x + 1) * width];
                 merge_pixel(
                     base,
+                    &estimate,
                     &noise,
                     &features,
                     &used,
@@ -244,6 +246,7 @@ pub fn merge(
 #[allow(clippy::too_many_arguments)]
 fn merge_pixel(
     base: &RenderSet,
+    estimate: &Image,
     noise: &Image,
     features: &[(Feature, usize)],
     used: &[(usize, &RenderSet, &[[f32; 2]])],
@@ -318,12 +321,14 @@ fn merge_pixel(
         // Unbiased weighted spread of one frame's value, divided down to the merged mean's.
         let dof = sum_w - sum_w2 / sum_w;
         let shrink = sum_w2 / (sum_w * sum_w);
-        let (_, spread) = window(&base.color, (x, y));
+        // Too few frames taken to tell a spread: the centre's own noise, estimated from the image
+        // as the noise stage would without the merge.
+        let own = estimate.at(x, y);
         for k in 0..3 {
             let one = if dof >= 0.5 {
                 ((sq[k] - sums[k] * sums[k] / sum_w) / dof).max(0.0)
             } else {
-                spread[k]
+                own[k] as f64
             };
             px[means + k] = (one * shrink) as f32;
         }
