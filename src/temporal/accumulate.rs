@@ -1,7 +1,8 @@
 //! The weighted per-pixel merge of the window (docs/ALGORITHM.md "Temporal merge"): each
 //! neighbour's reprojected sample counts by how well its 3×3 neighbourhood agrees with the centre
-//! frame's in colour, albedo, normal and depth, each measured against the windows' own spread (so
-//! noise is accepted and a disocclusion, a moving shadow or reflection is not). The centre frame
+//! frame's: colour patch by patch against the frame's estimated noise, albedo, normal and depth by
+//! their 3×3 means against the windows' spread (so noise is accepted and a disocclusion, a moving
+//! shadow or reflection is not). The centre frame
 //! always counts fully, so a pixel no neighbour matches keeps its own value. Sums run in f64 in a
 //! fixed order per pixel: the same bits on any thread count.
 
