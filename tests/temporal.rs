@@ -283,3 +283,29 @@ fn a_pipeline_key_turns_it_on_and_the_flag_overrides_it() {
     );
     assert_bad_input(&refused, "temporal");
 }
+
+#[test]
+fn a_damaged_neighbour_is_named_and_the_frame_merged_from_fewer() {
+    let tmp = tempfile::tempdir().unwrap();
+    let shot = copied_shot(&tmp.path().join("shot"), 0);
+    let damaged = shot.join("spp4/frame.0004.exr");
+    let bytes = std::fs::read(&damaged).unwrap();
+    std::fs::write(&damaged, &bytes[..bytes.len() / 3]).unwrap();
+    let out = tmp.path().join("out");
+    let fell_back = run(&shot, &out, &["--temporal", "1", "--frames", "3"]);
+    ok(&fell_back);
+    let err = stderr(&fell_back);
+    assert!(
+        err.contains("neighbour frame 4 left out") && err.contains("frame.0004.exr"),
+        "{err}"
+    );
+    // Its own frame fails by its number, as without --temporal; --keep-going goes on to frame 5.
+    let own = run(
+        &shot,
+        &out,
+        &["-q", "--temporal", "1", "--frames", "4-5", "--keep-going"],
+    );
+    assert_eq!(own.status.code(), Some(2), "{}", stderr(&own));
+    assert!(stderr(&own).contains("frame 4"), "{}", stderr(&own));
+    assert!(out.join("f.0005.exr").is_file() && !out.join("f.0004.exr").exists());
+}
