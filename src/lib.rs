@@ -60,6 +60,7 @@ pub mod run;
 pub mod spec;
 #[cfg(feature = "cli")]
 pub mod study;
+pub mod temporal;
 
 pub use crate::buffers::Buffers;
 pub use crate::error::{Error, Result};

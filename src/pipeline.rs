@@ -34,6 +34,8 @@ pub struct Pipeline {
     pub name: String,
     pub description: String,
     pub stages: Vec<Box<dyn Stage>>,
+    /// The pipeline file's `temporal` key: frames each side a sequence is merged over.
+    pub temporal: Option<usize>,
 }
 
 /// What a run did: sanitisation, notices, per-stage timings.
@@ -64,6 +66,7 @@ impl Pipeline {
             name: spec.name.clone(),
             description: spec.description.clone(),
             stages,
+            temporal: spec.temporal,
         };
         let steps = pipeline.steps_per_pixel();
         if steps > MAX_STEPS_PER_PIXEL {

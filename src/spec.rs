@@ -107,6 +107,8 @@ pub struct PipelineSpec {
     pub stages: Vec<StageSpec>,
     /// Where it came from (a path or `built-in`), for error messages.
     pub origin: String,
+    /// `temporal = R`: frames each side a frame sequence is merged over (`--temporal` overrides).
+    pub temporal: Option<usize>,
 }
 
 /// The level a `levelN` key names (`levels` is a parameter, not a level).
@@ -292,6 +294,9 @@ impl StageSpec {
 /// Largest pipeline file read: the shipped ones are a few KiB, and 256 stages fit in far less.
 pub const MAX_PIPELINE_BYTES: u64 = 1 << 20;
 
+/// Most frames each side `temporal = R` (and `--temporal`) may merge: 8 holds 17 frames in memory.
+pub const MAX_TEMPORAL_RADIUS: usize = 8;
+
 /// Most stages one pipeline file may hold, sub-stages included: far more than any pipeline runs.
 pub const MAX_STAGES: usize = 256;
 
@@ -390,10 +395,25 @@ impl PipelineSpec {
             .map_err(ctx)?
             .unwrap_or_default();
         let raw_stages = root.remove("stage");
+        let temporal = match root.remove("temporal") {
+            None => None,
+            Some(toml::Value::Integer(r)) if (0..=MAX_TEMPORAL_RADIUS as i64).contains(&r) => {
+                Some(r as usize)
+            }
+            Some(other) => {
+                return Err(Error::config(
+                    format!("{origin}: temporal"),
+                    format!(
+                        "is {other}, allowed range is 0 to {} frames each side",
+                        MAX_TEMPORAL_RADIUS
+                    ),
+                ))
+            }
+        };
         if let Some(key) = root.keys().next() {
             return Err(Error::config(
                 format!("{origin}: {key}"),
-                "unknown top-level key (expected name, description, stage)",
+                "unknown top-level key (expected name, description, temporal, stage)",
             ));
         }
         let raw_stages = match raw_stages {
@@ -417,6 +437,7 @@ impl PipelineSpec {
             description,
             stages,
             origin: origin.to_string(),
+            temporal,
         })
     }
 

@@ -187,6 +187,14 @@ pub struct DenoiseArgs {
     /// Also write every other channel of the colour's EXR unchanged (a multilayer input's passes).
     #[arg(long)]
     pub keep_layers: bool,
+    /// Denoise each frame of a frame pattern with R frames each side, reprojected by the motion
+    /// pass (0: each frame alone; overrides the pipeline's `temporal` key).
+    #[arg(long, value_name = "R")]
+    pub temporal: Option<usize>,
+    /// With --temporal: a neighbour that is missing or unreadable fails the frame (default: the
+    /// frame is merged from fewer neighbours, with a note).
+    #[arg(long)]
+    pub temporal_strict: bool,
 }
 
 fn compression(name: &str) -> std::result::Result<io::Compression, String> {

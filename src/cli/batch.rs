@@ -10,7 +10,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use super::args::DenoiseArgs;
-use super::frame::{denoise_or_skip, resolved};
+use super::frame::{denoise_or_skip, resolved, Loader};
 use super::report::{Entry, Outcome, PipelineJson, SequenceJson};
 use super::stdout::print_json;
 use crate::error::{Error, Result};
@@ -18,6 +18,7 @@ use crate::io;
 use crate::pipeline::Pipeline;
 use crate::progress::Progress;
 use crate::run::RunContext;
+use crate::temporal::Shot;
 
 /// Most frames one `--frames` list may name: far beyond a shot, so a larger count is a typo.
 const MAX_FRAMES: u64 = 1_000_000;
@@ -224,7 +225,56 @@ fn check_plan(frames: &[Frame]) -> Result<()> {
 /// One frame of a batch: its label (number or render set name) and the arguments of its run.
 struct Frame {
     label: String,
+    /// The frame number of a pattern's frame.
+    number: Option<u64>,
     args: DenoiseArgs,
+}
+
+/// The paths of a frame pattern's frames: any frame's arguments, also a neighbour's outside
+/// `--frames` (read-only, for `--temporal`).
+struct FramePaths {
+    base: DenoiseArgs,
+    pattern: Pattern,
+    inputs: Vec<(&'static str, Option<Pattern>)>,
+    output: Pattern,
+    saves: Vec<(String, Pattern)>,
+}
+
+impl FramePaths {
+    /// The arguments of frame `n`'s run.
+    fn args(&self, n: u64) -> DenoiseArgs {
+        let mut a = self.base.clone();
+        let frame = |p: &Pattern| PathBuf::from(p.frame(n));
+        if a.dir.is_some() {
+            a.dir = Some(frame(&self.pattern));
+        }
+        for (name, slot) in a.inputs.slots_mut() {
+            let pat = self
+                .inputs
+                .iter()
+                .find(|(n, _)| *n == name)
+                .and_then(|(_, p)| p.as_ref());
+            if let (Some(path), Some(pat)) = (slot, pat) {
+                *path = frame(pat);
+            }
+        }
+        a.output = frame(&self.output);
+        a.save_buffers = self
+            .saves
+            .iter()
+            .map(|(name, p)| format!("{name}={}", p.frame(n)))
+            .collect();
+        a
+    }
+
+    /// Frame `n`'s render set for a neighbour: `None` outside the shot's files (`first..=last`).
+    fn load(&self, n: u64, (first, last): (u64, u64)) -> Option<Result<io::LoadedSet>> {
+        if n < first || n > last {
+            return None;
+        }
+        let a = self.args(n);
+        Some(a.inputs.load(a.dir.as_deref()))
+    }
 }
 
 /// Frames to denoise one after another.
@@ -232,6 +282,8 @@ pub struct Batch {
     frames: Vec<Frame>,
     /// A folder that `-o` names, created before the first frame if missing.
     out_dir: Option<PathBuf>,
+    /// A frame pattern's paths (not for a folder of render sets).
+    paths: Option<FramePaths>,
 }
 
 /// A path as text, if it could hold a frame token (and does not name a file as it is).
@@ -287,43 +339,32 @@ impl Batch {
                 inputs.push((name, pattern_of(p)?));
             }
         }
+        let paths = FramePaths {
+            base: args.clone(),
+            pattern,
+            inputs,
+            output,
+            saves: save_patterns,
+        };
         let frames = numbers
             .into_iter()
-            .map(|n| {
-                let mut a = args.clone();
-                let frame = |p: &Pattern| PathBuf::from(p.frame(n));
-                if a.dir.is_some() {
-                    a.dir = Some(frame(&pattern));
-                }
-                for (name, slot) in a.inputs.slots_mut() {
-                    let pat = inputs
-                        .iter()
-                        .find(|(n, _)| *n == name)
-                        .and_then(|(_, p)| p.as_ref());
-                    if let (Some(path), Some(pat)) = (slot, pat) {
-                        *path = frame(pat);
-                    }
-                }
-                a.output = frame(&output);
-                a.save_buffers = save_patterns
-                    .iter()
-                    .map(|(name, p)| format!("{name}={}", p.frame(n)))
-                    .collect();
-                Frame {
-                    label: n.to_string(),
-                    args: a,
-                }
+            .map(|n| Frame {
+                label: n.to_string(),
+                number: Some(n),
+                args: paths.args(n),
             })
             .collect::<Vec<_>>();
         check_plan(&frames)?;
         Ok(Some(Batch {
             frames,
             out_dir: None,
+            paths: Some(paths),
         }))
     }
 
     /// A folder of render-set folders: each becomes `OUT/<name>.exr`.
     fn folders(args: &DenoiseArgs, dir: &Path) -> Result<Batch> {
+        no_temporal(args)?;
         if args.frames.is_some() {
             return Err(Error::config(
                 "--frames",
@@ -352,6 +393,7 @@ impl Batch {
                 a.output = args.output.join(format!("{name}.exr"));
                 Frame {
                     label: name,
+                    number: None,
                     args: a,
                 }
             })
@@ -360,11 +402,13 @@ impl Batch {
         Ok(Batch {
             frames,
             out_dir: Some(args.output.clone()),
+            paths: None,
         })
     }
 
     /// One render set: a frame token anywhere else (`-o`, `--albedo`) would be written literally.
     fn single(args: &DenoiseArgs) -> Result<()> {
+        no_temporal(args)?;
         if args.frames.is_some() {
             return Err(Error::config(
                 "--frames",
@@ -397,6 +441,18 @@ impl Batch {
         let mut entries = Vec::with_capacity(total);
         let mut failed: Vec<(String, i32)> = Vec::new();
         let mut stop = None;
+        let radius = args.temporal.or(pipeline.temporal).unwrap_or(0);
+        let mut shot = match &self.paths {
+            Some(paths) if radius > 0 => {
+                let files = paths.pattern.existing_frames().unwrap_or_default();
+                let range = (
+                    files.first().copied().unwrap_or(0),
+                    files.last().copied().unwrap_or(0),
+                );
+                Some((Shot::new(radius, args.temporal_strict)?, paths, range))
+            }
+            _ => None,
+        };
         for frame in self.frames {
             let label = frame.label;
             let say = |line: &str| {
@@ -404,7 +460,14 @@ impl Batch {
                     bar.println(&format!("gsid: frame {label}: {line}"));
                 }
             };
-            let outcome = match denoise_or_skip(&frame.args, pipeline, ctx, false, &say) {
+            let temporal = shot.is_some() && frame.number.is_some();
+            let mut merged = |_: &DenoiseArgs| -> Result<io::LoadedSet> {
+                let (shot, paths, range) = shot.as_mut().expect("a temporal run");
+                let n = frame.number.expect("a pattern's frame");
+                shot.frame(n, &|k| paths.load(k, *range))
+            };
+            let load: Option<Loader> = if temporal { Some(&mut merged) } else { None };
+            let outcome = match denoise_or_skip(&frame.args, pipeline, ctx, false, &say, load) {
                 Ok(outcome) => outcome,
                 Err(e) => {
                     let e = Error::Frame {
@@ -478,6 +541,22 @@ impl Batch {
             total,
         })
     }
+}
+
+/// `--temporal` needs a shot: a frame pattern, not one render set or a folder of them.
+fn no_temporal(args: &DenoiseArgs) -> Result<()> {
+    if args.temporal.unwrap_or(0) > 0 || args.temporal_strict {
+        let flag = if args.temporal_strict && args.temporal.unwrap_or(0) == 0 {
+            "--temporal-strict"
+        } else {
+            "--temporal"
+        };
+        return Err(Error::config(
+            flag,
+            "applies to a frame pattern input (shot/beauty.####.exr): its neighbours are found by frame number",
+        ));
+    }
+    Ok(())
 }
 
 /// A folder without a `color` file whose subfolders are render sets.

@@ -32,7 +32,7 @@ fn denoise_in_pool(args: &DenoiseArgs, ctx: &RunContext) -> Result<()> {
             crate::progress::say_err!("gsid: {line}");
         }
     };
-    let outcome = denoise_or_skip(args, &pipeline, ctx, ctx.progress, &say)?;
+    let outcome = denoise_or_skip(args, &pipeline, ctx, ctx.progress, &say, None)?;
     if args.json {
         print_json(&SingleJson {
             pipeline: PipelineJson::of(&pipeline),

@@ -53,6 +53,9 @@ fn check_outputs(inputs: &[(String, PathBuf)], outputs: &[&Path]) -> Result<()> 
     Ok(())
 }
 
+/// Reads a frame's render set in place of its own files (a temporal run's merged frame).
+pub(super) type Loader<'a> = &'a mut dyn FnMut(&DenoiseArgs) -> Result<io::LoadedSet>;
+
 /// Denoises the render set `args` names, or skips it when `--skip-existing` finds its output (the
 /// `-o` file, written last) already there. `say` gets each line for the user as soon as it is known.
 pub(super) fn denoise_or_skip(
@@ -61,6 +64,7 @@ pub(super) fn denoise_or_skip(
     ctx: &RunContext,
     stage_progress: bool,
     say: &dyn Fn(&str),
+    load: Option<Loader>,
 ) -> Result<Outcome> {
     let output = &args.output;
     if args.skip_existing && output.as_os_str() != io::STDOUT && output.is_file() {
@@ -69,25 +73,30 @@ pub(super) fn denoise_or_skip(
             output: output.display().to_string(),
         });
     }
-    let report = denoise_frame(args, pipeline, ctx, stage_progress, say)?;
+    let report = denoise_frame(args, pipeline, ctx, stage_progress, say, load)?;
     report::tell(&report, args.timings, say);
     Ok(Outcome::Done(Box::new(report)))
 }
 
-/// Denoises the one render set `args` names. `say` gets the input's notes before the work starts.
+/// Denoises the one render set `args` names, read by `load` when given (a temporal run's merged
+/// frame). `say` gets the input's notes before the work starts.
 fn denoise_frame(
     args: &DenoiseArgs,
     pipeline: &Pipeline,
     ctx: &RunContext,
     stage_progress: bool,
     say: &dyn Fn(&str),
+    load: Option<Loader>,
 ) -> Result<FrameReport> {
     let start = Instant::now();
     let saves = args.saves()?;
     // Sized from the colour's header before anything is decoded: a run that cannot fit in memory
     // is refused before it takes any.
     args.run.check_memory([pipeline], args.colour_input())?;
-    let set = args.inputs.load(args.dir.as_deref())?;
+    let set = match load {
+        Some(load) => load(args)?,
+        None => args.inputs.load(args.dir.as_deref())?,
+    };
     let outputs: Vec<&Path> = std::iter::once(args.output.as_path())
         .chain(saves.iter().map(|(_, p)| p.as_path()))
         .collect();

@@ -205,7 +205,9 @@ pub fn load_input(path: &Path, maps: &[(String, String)]) -> Result<LoadedSet> {
     }
     let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let reference = Some(dir.join("reference.exr")).filter(|r| r.is_file() && r != path);
-    Ok(LoadedSet::new(dir, set, files, sources, reference, notes, true).with_frame(frame))
+    let mut loaded = LoadedSet::new(dir, set, files, sources, reference, notes, true);
+    loaded.motion = layers.motion();
+    Ok(loaded.with_frame(frame))
 }
 
 /// Splits `file.exr:Layer` into the file and the layer; a path that exists is taken whole.

@@ -27,6 +27,8 @@ pub struct LoadedSet {
     pub layered: bool,
     /// What the output keeps of the colour's file (FORMATS.md, "What the output keeps").
     pub frame: Frame,
+    /// The renderer's motion pass, when a multilayer input has one (for `--temporal`).
+    pub motion: Option<passes::MotionPass>,
 }
 
 impl LoadedSet {
@@ -56,6 +58,7 @@ impl LoadedSet {
             notes,
             layered,
             frame: Frame::default(),
+            motion: None,
         }
     }
 

@@ -42,6 +42,38 @@ pub const PASSES: [(&str, &[&str]); 9] = [
     ("color_b", &["color_b"]),
 ];
 
+/// How a motion pass's channels point (docs/FORMATS.md "Motion"): every kind becomes offsets in
+/// pixels, x right and y down, from a pixel to where its surface is in the previous / next frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MotionKind {
+    /// Blender's `Vector`: X,Y = previous − current, Z,W = current − next, y up (checked on a
+    /// Cycles render: warped neighbours match the frame's albedo only this way round).
+    BlenderVector,
+    /// An offset to the previous frame (RenderMan `motionBack`), R,G or X,Y, y up.
+    Back,
+    /// An offset to the next frame (RenderMan `motionFore`, Arnold `motionvector`), y up.
+    Fore,
+}
+
+/// Motion pass names (compared ignoring case) and how their channels point.
+pub const MOTION: [(&str, MotionKind); 4] = [
+    ("Vector", MotionKind::BlenderVector),
+    ("motionBack", MotionKind::Back),
+    ("motionFore", MotionKind::Fore),
+    ("motionvector", MotionKind::Fore),
+];
+
+/// A frame's motion pass, as offsets in pixels (x right, y down), 2 channels each.
+#[derive(Clone, Debug)]
+pub struct MotionPass {
+    /// From each pixel to its surface's place in the previous frame.
+    pub back: Option<Image>,
+    /// From each pixel to its surface's place in the next frame.
+    pub fore: Option<Image>,
+    /// The layers read, for notes.
+    pub source: String,
+}
+
 /// Passes recognised but not loaded: Cycles 2.79's variances of its feature passes.
 const RECORDED: [&str; 3] = [
     "Denoising Normal Variance",
@@ -331,6 +363,59 @@ impl Layers {
                 ),
             )),
         }
+    }
+
+    /// The motion pass, if the file has one the [`MOTION`] table names.
+    pub fn motion(&self) -> Option<MotionPass> {
+        let (mut back, mut fore, mut sources) = (None, None, Vec::new());
+        for (name, kind) in MOTION {
+            let Some(layer) = self
+                .layers
+                .iter()
+                .find(|l| l.pass().eq_ignore_ascii_case(name))
+            else {
+                continue;
+            };
+            let channel = |names: &[&str]| layer.find(names);
+            let plane = |c: usize, sign: f32| -> Vec<f32> {
+                match &layer.channels[c].1.samples {
+                    FlatSamples::F16(v) => v.iter().map(|s| sign * s.to_f32()).collect(),
+                    FlatSamples::F32(v) => v.iter().map(|&s| sign * s).collect(),
+                    FlatSamples::U32(v) => v.iter().map(|&s| sign * s as f32).collect(),
+                }
+            };
+            // Interleaved (dx, dy) with y turned downwards; `sx`, `sy` turn each into an offset.
+            let offsets = |x: usize, y: usize, sx: f32, sy: f32| {
+                let (xs, ys) = (plane(x, sx), plane(y, sy));
+                let data = xs.iter().zip(&ys).flat_map(|(&a, &b)| [a, b]).collect();
+                Image::from_vec(self.width, self.height, 2, data).ok()
+            };
+            let xy = || Some((channel(&["R", "X"])?, channel(&["G", "Y"])?));
+            match kind {
+                MotionKind::BlenderVector => {
+                    let zw = || Some((channel(&["Z", "B"])?, channel(&["W", "A"])?));
+                    let (Some((x, y)), Some((z, w))) = (xy(), zw()) else {
+                        continue;
+                    };
+                    back = offsets(x, y, 1.0, -1.0);
+                    fore = offsets(z, w, -1.0, 1.0);
+                }
+                MotionKind::Back => {
+                    let Some((x, y)) = xy() else { continue };
+                    back = back.or_else(|| offsets(x, y, 1.0, -1.0));
+                }
+                MotionKind::Fore => {
+                    let Some((x, y)) = xy() else { continue };
+                    fore = fore.or_else(|| offsets(x, y, 1.0, -1.0));
+                }
+            }
+            sources.push(layer.describe());
+        }
+        (back.is_some() || fore.is_some()).then(|| MotionPass {
+            back,
+            fore,
+            source: sources.join(", "),
+        })
     }
 
     /// Layers recognised as passes gsid does not load (feature variances), for a note.

@@ -1,0 +1,389 @@
+//! The weighted per-pixel merge of the window (docs/ALGORITHM.md "Temporal merge"): each
+//! neighbour's reprojected sample counts by how well its 3×3 neighbourhood agrees with the centre
+//! frame's: colour patch by patch against the frame's estimated noise, albedo, normal and depth by
+//! their 3×3 means against the windows' spread (so noise is accepted and a disocclusion, a moving
+//! shadow or reflection is not). The centre frame
+//! always counts fully, so a pixel no neighbour matches keeps its own value. Sums run in f64 in a
+//! fixed order per pixel: the same bits on any thread count.
+
+use rayon::prelude::*;
+
+use super::reproject::{bilinear, nearest, window, MAX_CHANNELS};
+use crate::image::Image;
+use crate::render_set::{Feature, RenderSet};
+
+/// A difference of 3×3 means below this many standard errors (squared) is taken for noise…
+const ACCEPT: f64 = 4.0;
+/// …and above this many it rejects the sample; weights fall linearly between.
+const REJECT: f64 = 16.0;
+/// Variance of a 3×3 mean relative to the window's spread: 1/9 for independent pixels, more
+/// because a renderer's pixel filter correlates neighbours.
+const MEAN_SPREAD: f64 = 2.0 / 9.0;
+
+/// Differences every buffer tolerates beyond its noise (sub-pixel misalignment, slow change):
+/// a fraction of the centre's level plus an absolute floor.
+fn tolerance(buffer: Option<Feature>, level: f64) -> f64 {
+    match buffer {
+        None => 0.02 * level + 1e-6,
+        Some(Feature::Albedo) => 0.03 + 0.05 * level,
+        Some(Feature::Normal) => 0.1,
+        Some(Feature::Depth) => 0.02 * level + 1e-6,
+        Some(_) => 0.05 + 0.05 * level,
+    }
+}
+
+/// Weight of a squared difference in units of its standard error.
+fn ramp(r: f64) -> f64 {
+    if r <= ACCEPT {
+        1.0
+    } else if r >= REJECT {
+        0.0
+    } else {
+        (REJECT - r) / (REJECT - ACCEPT)
+    }
+}
+
+/// The agreement of one buffer between the centre pixel `at` and a neighbour's pixel `there`.
+fn agreement(
+    centre: &Image,
+    at: (usize, usize),
+    other: &Image,
+    there: (usize, usize),
+    buffer: Option<Feature>,
+) -> f64 {
+    let c = centre.channels();
+    let (m0, v0) = window(centre, at);
+    let (m1, v1) = window(other, there);
+    let level = m0[..c].iter().fold(0.0f64, |a, v| a.max(v.abs()));
+    let floor = tolerance(buffer, level);
+    let (mut diff, mut noise) = (0.0, 0.0);
+    for k in 0..c {
+        diff += (m1[k] - m0[k]).powi(2);
+        // The smaller spread: a window that straddles an edge or a highlight the other lacks
+        // measures structure, not noise, and must not make a different surface look alike.
+        noise += 2.0 * v0[k].min(v1[k]) * MEAN_SPREAD + floor * floor;
+    }
+    ramp(diff / noise)
+}
+
+/// Most a 3×3 colour patch may differ from the centre's, in units of its expected noise
+/// (1 for pure noise), before its weight falls…
+const PATCH_ACCEPT: f64 = 2.0;
+/// …and where it reaches zero.
+const PATCH_REJECT: f64 = 4.0;
+
+/// Colour agreement of the 3×3 patches around the centre pixel `at` and the neighbour's `there`,
+/// pixel by pixel against twice the centre's estimated noise (`noise`: the variance of one pixel,
+/// from the image): a patch whose structure moved unlike its motion pass (a reflection, a shadow)
+/// differs by more than noise even where the surface is textured.
+fn patch_agreement(
+    centre: &Image,
+    noise: &Image,
+    (x, y): (usize, usize),
+    other: &Image,
+    (u, v): (usize, usize),
+) -> f64 {
+    let (w, h) = centre.dims();
+    let (ow, oh) = other.dims();
+    let (mut diff, mut expected) = (0.0f64, 0.0f64);
+    for dy in -1isize..=1 {
+        for dx in -1isize..=1 {
+            let (cx, cy) = (x as isize + dx, y as isize + dy);
+            let (nx, ny) = (u as isize + dx, v as isize + dy);
+            if cx < 0 || cy < 0 || nx < 0 || ny < 0 {
+                continue;
+            }
+            let (cx, cy, nx, ny) = (cx as usize, cy as usize, nx as usize, ny as usize);
+            if cx >= w || cy >= h || nx >= ow || ny >= oh {
+                continue;
+            }
+            let a = centre.at(cx, cy);
+            let b = other.at(nx, ny);
+            let s = noise.at(cx, cy);
+            for k in 0..3 {
+                let floor = 0.02 * (a[k] as f64).abs() + 1e-6;
+                diff += (a[k] as f64 - b[k] as f64).powi(2);
+                expected += 2.0 * (s[k] as f64).max(0.0) + floor * floor;
+            }
+        }
+    }
+    if expected <= 0.0 {
+        return 1.0;
+    }
+    let r = diff / expected;
+    if r <= PATCH_ACCEPT {
+        1.0
+    } else if r >= PATCH_REJECT {
+        0.0
+    } else {
+        (PATCH_REJECT - r) / (PATCH_REJECT - PATCH_ACCEPT)
+    }
+}
+
+/// How far above the frame's typical noise (relative to brightness) a pixel's estimate may lie.
+const NOISE_CAP: f64 = 16.0;
+
+/// The variance of one pixel of `color`, from the image (the noise stage's estimate), as it is and capped at
+/// [`NOISE_CAP`] times the frame's median noise relative to the local brightness. Why: the
+/// estimate takes a mirror's sharp reflection for noise, and a reflection that moved unlike its
+/// surface's motion pass would then pass for noise too.
+fn capped_noise(color: &Image, features: &crate::render_set::FeatureSet) -> (Image, Image) {
+    let estimate = crate::filters::noise::estimate(color, features);
+    let mut noise = estimate.clone();
+    let (w, h) = color.dims();
+    let level = |x: usize, y: usize| {
+        let (m, _) = window(color, (x, y));
+        (m[0] * m[0] + m[1] * m[1] + m[2] * m[2]) / 3.0 + 1e-4
+    };
+    let mut ratios: Vec<f64> = (0..w * h)
+        .map(|i| {
+            let s = noise.pixel(i);
+            let v = (s[0] + s[1] + s[2]) as f64 / 3.0;
+            v / level(i % w, i / w)
+        })
+        .filter(|r| r.is_finite())
+        .collect();
+    if ratios.is_empty() {
+        return (estimate, noise);
+    }
+    ratios.sort_unstable_by(f64::total_cmp);
+    let median = ratios[ratios.len() / 2];
+    for i in 0..w * h {
+        let cap = (NOISE_CAP * median * level(i % w, i / w)) as f32;
+        noise.pixel_mut(i).iter_mut().for_each(|v| *v = v.min(cap));
+    }
+    (estimate, noise)
+}
+
+/// The merged frame: colour and features as weighted means over the window, and what each
+/// frame contributed.
+pub struct Merged {
+    pub set: RenderSet,
+    /// Mean weight of each window frame over the image (the centre's is 1, a missing frame's 0).
+    pub weights: Vec<f64>,
+}
+
+/// Merges the window `frames` (in frame order, `None` where missing) at the centre frame's
+/// pixels; `tracks` gives each frame's positions of those pixels (`None`: unreachable). With
+/// `variance`, the result carries the variance of each pixel's merged mean, from the spread of the
+/// frames it took (the centre's estimated noise where it took too few to tell).
+pub fn merge(
+    frames: &[Option<&RenderSet>],
+    tracks: &[Option<Vec<[f32; 2]>>],
+    centre: usize,
+    variance: bool,
+) -> Merged {
+    let base = frames[centre].expect("the centre frame is present");
+    let (w, h) = base.dims();
+    // Buffers merged: colour, then the centre's features, each with its channel count.
+    let features: Vec<(Feature, usize)> = base
+        .features
+        .iter()
+        .map(|(f, img)| (f, img.channels()))
+        .collect();
+    let width: usize =
+        3 + features.iter().map(|(_, c)| c).sum::<usize>() + if variance { 3 } else { 0 };
+    let used: Vec<(usize, &RenderSet, &[[f32; 2]])> = frames
+        .iter()
+        .zip(tracks)
+        .enumerate()
+        .filter_map(|(j, (f, t))| Some((j, (*f)?, t.as_deref()?)))
+        .collect();
+    let (estimate, noise) = capped_noise(&base.color, &base.features);
+    let mut out = vec![0.0f32; w * h * width];
+    let row_weights: Vec<Vec<f64>> = out
+        .par_chunks_mut(w * width)
+        .enumerate()
+        .map(|(y, row)| {
+            let mut totals = vec![0.0f64; frames.len()];
+            for x in 0..w {
+                let px = &mut row[x * width..(x + 1) * width];
+                merge_pixel(
+                    base,
+                    &estimate,
+                    &noise,
+                    &features,
+                    &used,
+                    centre,
+                    (x, y),
+                    variance,
+                    px,
+                    &mut totals,
+                );
+            }
+            totals
+        })
+        .collect();
+    let mut weights = vec![0.0f64; frames.len()];
+    for row in &row_weights {
+        for (t, r) in weights.iter_mut().zip(row) {
+            *t += r;
+        }
+    }
+    weights.iter_mut().for_each(|t| *t /= (w * h) as f64);
+    let plane = |offset: usize, c: usize| {
+        let data = out
+            .chunks_exact(width)
+            .flat_map(|px| px[offset..offset + c].iter().copied())
+            .collect();
+        Image::from_vec(w, h, c, data).expect("a plane of the merged frame")
+    };
+    let mut set = RenderSet::new(plane(0, 3));
+    let mut offset = 3;
+    for &(f, c) in &features {
+        set.features
+            .set(f, plane(offset, c))
+            .expect("a feature keeps its channel count");
+        offset += c;
+    }
+    if variance {
+        set.noise.variance = Some(plane(offset, 3));
+    }
+    Merged { set, weights }
+}
+
+/// One output pixel: the weighted means (and the variance of the colour's) into `px`, each
+/// frame's weight added to `totals`.
+#[allow(clippy::too_many_arguments)]
+fn merge_pixel(
+    base: &RenderSet,
+    estimate: &Image,
+    noise: &Image,
+    features: &[(Feature, usize)],
+    used: &[(usize, &RenderSet, &[[f32; 2]])],
+    centre: usize,
+    (x, y): (usize, usize),
+    variance: bool,
+    px: &mut [f32],
+    totals: &mut [f64],
+) {
+    let w = base.dims().0;
+    let i = y * w + x;
+    let width = px.len();
+    let mut sums = vec![0.0f64; width];
+    let (mut sum_w, mut sum_w2) = (0.0f64, 0.0f64);
+    let mut sq = [0.0f64; 3];
+    let mut sample = [0.0f64; MAX_CHANNELS];
+    for &(j, set, track) in used {
+        let pos = track[i];
+        let weight = if j == centre {
+            1.0
+        } else {
+            let Some(there) = nearest(&set.color, pos) else {
+                continue;
+            };
+            let mut wt = patch_agreement(&base.color, noise, (x, y), &set.color, there);
+            for &(f, _) in features {
+                if wt <= 0.0 {
+                    break;
+                }
+                if let (Some(a), Some(b)) = (base.features.get(f), set.features.get(f)) {
+                    wt *= agreement(a, (x, y), b, there, Some(f));
+                }
+            }
+            wt
+        };
+        if weight <= 0.0 {
+            continue;
+        }
+        totals[j] += weight;
+        sum_w += weight;
+        sum_w2 += weight * weight;
+        bilinear(&set.color, pos, &mut sample);
+        for k in 0..3 {
+            sums[k] += weight * sample[k];
+            sq[k] += weight * sample[k] * sample[k];
+        }
+        let mut offset = 3;
+        for &(f, c) in features {
+            // A neighbour without the feature lends the centre's value, so the mean stays whole.
+            let img = set
+                .features
+                .get(f)
+                .or(base.features.get(f))
+                .expect("present");
+            let at = if set.features.contains(f) {
+                pos
+            } else {
+                [x as f32, y as f32]
+            };
+            bilinear(img, at, &mut sample);
+            for k in 0..c {
+                sums[offset + k] += weight * sample[k];
+            }
+            offset += c;
+        }
+    }
+    let means = 3 + features.iter().map(|(_, c)| c).sum::<usize>();
+    for k in 0..means {
+        px[k] = (sums[k] / sum_w) as f32;
+    }
+    if variance {
+        // Unbiased weighted spread of one frame's value, divided down to the merged mean's.
+        let dof = sum_w - sum_w2 / sum_w;
+        let shrink = sum_w2 / (sum_w * sum_w);
+        // Too few frames taken to tell a spread: the centre's own noise, estimated from the image
+        // as the noise stage would without the merge.
+        let own = estimate.at(x, y);
+        for k in 0..3 {
+            let one = if dof >= 0.5 {
+                ((sq[k] - sums[k] * sums[k] / sum_w) / dof).max(0.0)
+            } else {
+                own[k] as f64
+            };
+            px[means + k] = (one * shrink) as f32;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(value: impl Fn(usize, usize) -> f32, albedo: f32) -> RenderSet {
+        RenderSet::new(Image::from_fn(8, 8, 3, |x, y, _| value(x, y)))
+            .with(Feature::Albedo, Image::filled(8, 8, 3, albedo))
+            .unwrap()
+    }
+
+    fn still(n: usize) -> Vec<Option<Vec<[f32; 2]>>> {
+        let id: Vec<[f32; 2]> = (0..64).map(|i| [(i % 8) as f32, (i / 8) as f32]).collect();
+        vec![Some(id); n]
+    }
+
+    #[test]
+    fn agreeing_frames_average_and_a_different_surface_is_left_out() {
+        let noisy = |k: usize| {
+            move |x: usize, y: usize| 0.5 + 0.01 * (((x * 7 + y * 3 + k) % 5) as f32 - 2.0)
+        };
+        let (a, b, c) = (
+            frame(noisy(0), 0.5),
+            frame(noisy(1), 0.5),
+            frame(noisy(2), 0.5),
+        );
+        let merged = merge(&[Some(&a), Some(&b), Some(&c)], &still(3), 1, true);
+        assert!(
+            merged.weights.iter().all(|&w| w > 0.99),
+            "{:?}",
+            merged.weights
+        );
+        let want = (a.color.at(3, 3)[0] + b.color.at(3, 3)[0] + c.color.at(3, 3)[0]) as f64 / 3.0;
+        assert!((merged.set.color.at(3, 3)[0] as f64 - want).abs() < 1e-6);
+        assert!(merged.set.noise.variance.unwrap().all_finite());
+        let other = frame(noisy(1), 0.9);
+        let merged = merge(&[Some(&a), Some(&other), Some(&c)], &still(3), 1, false);
+        assert_eq!(merged.weights[0], 0.0);
+        assert_eq!(merged.set.color, other.color);
+    }
+
+    #[test]
+    fn a_missing_or_unreachable_frame_adds_nothing() {
+        let a = frame(|_, _| 0.3, 0.5);
+        let b = frame(|_, _| 0.7, 0.5);
+        let mut tracks = still(3);
+        tracks[2] = None;
+        let merged = merge(&[None, Some(&a), Some(&b)], &tracks, 1, true);
+        assert_eq!(merged.weights, [0.0, 1.0, 0.0]);
+        assert_eq!(merged.set.color, a.color);
+    }
+}
