@@ -80,6 +80,34 @@ fn fireflies_of_a_million_stay_finite_and_local() {
     }
 }
 
+/// A frame of nothing but fireflies (every pixel black or 1e6, at random), with features that are
+/// salt and pepper too and a depth that is mostly unrecorded (0): what the reliability gate, the
+/// outlier test and the noise estimate see at their worst.
+#[test]
+fn a_frame_of_nothing_but_fireflies_stays_finite() {
+    for p in PIPELINES {
+        let mut b = synthetic_set(20, 17);
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut coin = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state % 3 == 0
+        };
+        for i in 0..20 * 17 {
+            let v = if coin() { 1e6 } else { 0.0 };
+            b.get_mut("color").unwrap().pixel_mut(i).fill(v);
+            let a = if coin() { 0.9 } else { 0.1 };
+            b.get_mut("albedo").unwrap().pixel_mut(i).fill(a);
+            if coin() || coin() {
+                b.get_mut("depth").unwrap().pixel_mut(i)[0] = 0.0;
+            }
+        }
+        let out = run(p, &[], &mut b);
+        assert_finite(&out, p);
+    }
+}
+
 #[test]
 fn nan_and_inf_pixels_are_sanitised() {
     for p in PIPELINES {
