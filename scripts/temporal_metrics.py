@@ -28,6 +28,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import gsidscore as gs  # noqa: E402
+from compare_denoisers import oidn_filter  # noqa: E402  (one OIDN setup for every comparison)
 
 
 def frames_of(folder):
@@ -132,14 +133,9 @@ def run_oidn(folder, work):
         albedo = gs.read_pass(frame, *gs.LAYER_PASSES["albedo"])
         normal = gs.read_pass(frame, *gs.LAYER_PASSES["normal"])
         output = np.zeros_like(color)
-        flt = pyoidn.Filter(device, pyoidn.OIDN_FILTER_TYPE_RT)
-        flt.set_image(pyoidn.OIDN_IMAGE_COLOR, color, pyoidn.OIDN_FORMAT_FLOAT3)
-        flt.set_image(pyoidn.OIDN_IMAGE_ALBEDO, albedo, pyoidn.OIDN_FORMAT_FLOAT3)
-        flt.set_image(pyoidn.OIDN_IMAGE_NORMAL, normal, pyoidn.OIDN_FORMAT_FLOAT3)
-        flt.set_image(pyoidn.OIDN_IMAGE_OUTPUT, output, pyoidn.OIDN_FORMAT_FLOAT3)
-        flt.set_bool("hdr", True)
-        flt.commit()
+        flt = oidn_filter(device, color, albedo, normal, output)
         flt.execute()
+        flt.release()
         path = work / f"oidn.{frame.name.split('.')[1]}.exr"
         gs.write_rgb(path, output)
         outs.append(path)

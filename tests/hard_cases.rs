@@ -92,7 +92,7 @@ fn a_frame_of_nothing_but_fireflies_stays_finite() {
             state ^= state << 13;
             state ^= state >> 7;
             state ^= state << 17;
-            state % 3 == 0
+            state.is_multiple_of(3)
         };
         for i in 0..20 * 17 {
             let v = if coin() { 1e6 } else { 0.0 };

@@ -180,3 +180,27 @@ pub fn parse_params<T: serde::de::DeserializeOwned>(id: &str, params: toml::Tabl
         Error::config(id.to_string(), msg)
     })
 }
+
+/// The feature buffers a stage's `features` key names, each checked to be one and listed once; the
+/// error names the key.
+pub fn feature_list(names: &[String]) -> Result<Vec<crate::render_set::Feature>> {
+    use crate::render_set::Feature;
+    let mut features = Vec::with_capacity(names.len());
+    for (i, name) in names.iter().enumerate() {
+        let Some(feature) = Feature::from_name(name) else {
+            let known = Feature::ALL.map(Feature::name).join(", ");
+            return Err(Error::config(
+                "features",
+                format!("`{name}` is not a feature buffer (known: {known})"),
+            ));
+        };
+        if names[..i].contains(name) {
+            return Err(Error::config(
+                "features",
+                format!("`{name}` is listed twice"),
+            ));
+        }
+        features.push(feature);
+    }
+    Ok(features)
+}

@@ -38,7 +38,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
-use crate::filters::stage::{parse_params, Context, Stage, StageIo};
+use crate::filters::stage::{feature_list, parse_params, Context, Stage, StageIo};
 use crate::render_set::Feature;
 
 /// Parameters of the `prefilter` stage (keys of its table in a pipeline file).
@@ -91,21 +91,7 @@ impl Default for PrefilterParams {
 impl PrefilterParams {
     /// Checks every key against its allowed range; the error names the key.
     pub fn validate(&self) -> Result<()> {
-        for (i, name) in self.features.iter().enumerate() {
-            if Feature::from_name(name).is_none() {
-                let known = Feature::ALL.map(Feature::name).join(", ");
-                return Err(Error::config(
-                    "features",
-                    format!("`{name}` is not a feature buffer (known: {known})"),
-                ));
-            }
-            if self.features[..i].contains(name) {
-                return Err(Error::config(
-                    "features",
-                    format!("`{name}` is listed twice"),
-                ));
-            }
-        }
+        feature_list(&self.features)?;
         if !(self.strength > 0.0 && self.strength <= 10.0) {
             return Err(Error::range(
                 "strength",
@@ -146,11 +132,7 @@ impl PrefilterStage {
     pub fn from_table(id: &str, _io: StageIo, table: toml::Table) -> Result<Self> {
         let params: PrefilterParams = parse_params(id, table)?;
         params.validate().map_err(|e| e.in_context(id))?;
-        let features = params
-            .features
-            .iter()
-            .filter_map(|n| Feature::from_name(n))
-            .collect();
+        let features = feature_list(&params.features)?;
         Ok(PrefilterStage {
             id: id.to_string(),
             features,

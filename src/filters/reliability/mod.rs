@@ -30,7 +30,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
-use crate::filters::stage::{parse_params, Context, Stage, StageIo};
+use crate::filters::stage::{feature_list, parse_params, Context, Stage, StageIo};
 use crate::render_set::Feature;
 
 /// Largest window radius.
@@ -59,21 +59,7 @@ impl Default for ReliabilityParams {
 impl ReliabilityParams {
     /// Checks every key against its allowed range; the error names the key.
     pub fn validate(&self) -> Result<()> {
-        for (i, name) in self.features.iter().enumerate() {
-            if Feature::from_name(name).is_none() {
-                let known = Feature::ALL.map(Feature::name).join(", ");
-                return Err(Error::config(
-                    "features",
-                    format!("`{name}` is not a feature buffer (known: {known})"),
-                ));
-            }
-            if self.features[..i].contains(name) {
-                return Err(Error::config(
-                    "features",
-                    format!("`{name}` is listed twice"),
-                ));
-            }
-        }
+        feature_list(&self.features)?;
         if !(1..=MAX_RADIUS).contains(&self.radius) {
             return Err(Error::range("radius", self.radius, "1 to 8"));
         }
@@ -105,11 +91,7 @@ impl ReliabilityStage {
     pub fn from_table(id: &str, _io: StageIo, table: toml::Table) -> Result<Self> {
         let params: ReliabilityParams = parse_params(id, table)?;
         params.validate().map_err(|e| e.in_context(id))?;
-        let features = params
-            .features
-            .iter()
-            .filter_map(|n| Feature::from_name(n))
-            .collect();
+        let features = feature_list(&params.features)?;
         Ok(ReliabilityStage {
             id: id.to_string(),
             features,
