@@ -369,9 +369,13 @@ def main(argv=None):
     outdir = Path(args.keep) if args.keep else Path(tmp.name)
     outdir.mkdir(parents=True, exist_ok=True)
 
+    references = {}  # each reference read once, not once a method
+
     def add(fx, spp, method, image, ref, seconds=None, process=None, albedos=None, **extra):
         score = gsid_eval(gsid, image, ref)
-        out_rgb, ref_rgb = read_rgb(image), read_rgb(ref)
+        if ref not in references:
+            references[ref] = read_rgb(ref)
+        out_rgb, ref_rgb = read_rgb(image), references[ref]
         corr = albedo_noise_correlation(out_rgb, ref_rgb, *albedos) if albedos else None
         row = {"fixture": fx, "spp": spp, "method": method, "ssim": score["ssim"], "psnr": score["psnr"],
                "relmse": score["relmse"], "brightness_pct": brightness_percent(out_rgb, ref_rgb),

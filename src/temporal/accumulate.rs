@@ -32,27 +32,30 @@ fn tolerance(buffer: Option<Feature>, level: f64) -> f64 {
     }
 }
 
-/// Weight of a squared difference in units of its standard error.
-fn ramp(r: f64) -> f64 {
-    if r <= ACCEPT {
+/// Weight of a squared difference `r` in units of its noise: 1 up to `accept`, 0 from `reject`,
+/// linear between.
+fn ramp(r: f64, accept: f64, reject: f64) -> f64 {
+    if r <= accept {
         1.0
-    } else if r >= REJECT {
+    } else if r >= reject {
         0.0
     } else {
-        (REJECT - r) / (REJECT - ACCEPT)
+        (reject - r) / (reject - accept)
     }
 }
 
-/// The agreement of one buffer between the centre pixel `at` and a neighbour's pixel `there`.
+/// 3×3 mean and spread per channel (`reproject::window`).
+type Stats = ([f64; MAX_CHANNELS], [f64; MAX_CHANNELS]);
+
+/// The agreement of a `c`-channel buffer between the centre pixel, whose 3×3 statistics are
+/// `(m0, v0)`, and a neighbour's pixel `there`.
 fn agreement(
-    centre: &Image,
-    at: (usize, usize),
+    (m0, v0): &Stats,
+    c: usize,
     other: &Image,
     there: (usize, usize),
     buffer: Option<Feature>,
 ) -> f64 {
-    let c = centre.channels();
-    let (m0, v0) = window(centre, at);
     let (m1, v1) = window(other, there);
     let level = m0[..c].iter().fold(0.0f64, |a, v| a.max(v.abs()));
     let floor = tolerance(buffer, level);
@@ -63,7 +66,7 @@ fn agreement(
         // measures structure, not noise, and must not make a different surface look alike.
         noise += 2.0 * v0[k].min(v1[k]) * MEAN_SPREAD + floor * floor;
     }
-    ramp(diff / noise)
+    ramp(diff / noise, ACCEPT, REJECT)
 }
 
 /// Most a 3×3 colour patch may differ from the centre's, in units of its expected noise
@@ -110,14 +113,7 @@ fn patch_agreement(
     if expected <= 0.0 {
         return 1.0;
     }
-    let r = diff / expected;
-    if r <= PATCH_ACCEPT {
-        1.0
-    } else if r >= PATCH_REJECT {
-        0.0
-    } else {
-        (PATCH_REJECT - r) / (PATCH_REJECT - PATCH_ACCEPT)
-    }
+    ramp(diff / expected, PATCH_ACCEPT, PATCH_REJECT)
 }
 
 /// How far above the frame's typical noise (relative to brightness) a pixel's estimate may lie.
@@ -131,15 +127,17 @@ fn capped_noise(color: &Image, features: &crate::render_set::FeatureSet) -> (Ima
     let estimate = crate::filters::noise::estimate(color, features);
     let mut noise = estimate.clone();
     let (w, h) = color.dims();
-    let level = |x: usize, y: usize| {
-        let (m, _) = window(color, (x, y));
-        (m[0] * m[0] + m[1] * m[1] + m[2] * m[2]) / 3.0 + 1e-4
-    };
+    let levels: Vec<f64> = (0..w * h)
+        .map(|i| {
+            let (m, _) = window(color, (i % w, i / w));
+            (m[0] * m[0] + m[1] * m[1] + m[2] * m[2]) / 3.0 + 1e-4
+        })
+        .collect();
     let mut ratios: Vec<f64> = (0..w * h)
         .map(|i| {
             let s = noise.pixel(i);
             let v = (s[0] + s[1] + s[2]) as f64 / 3.0;
-            v / level(i % w, i / w)
+            v / levels[i]
         })
         .filter(|r| r.is_finite())
         .collect();
@@ -148,9 +146,9 @@ fn capped_noise(color: &Image, features: &crate::render_set::FeatureSet) -> (Ima
     }
     ratios.sort_unstable_by(f64::total_cmp);
     let median = ratios[ratios.len() / 2];
-    for i in 0..w * h {
-        let cap = (NOISE_CAP * median * level(i % w, i / w)) as f32;
-        noise.pixel_mut(i).iter_mut().for_each(|v| *v = v.min(cap));
+    for (px, level) in noise.data_mut().chunks_exact_mut(3).zip(&levels) {
+        let cap = (NOISE_CAP * median * level) as f32;
+        px.iter_mut().for_each(|v| *v = v.min(cap));
     }
     (estimate, noise)
 }
@@ -164,14 +162,13 @@ pub struct Merged {
 }
 
 /// Merges the window `frames` (in frame order, `None` where missing) at the centre frame's
-/// pixels; `tracks` gives each frame's positions of those pixels (`None`: unreachable). With
-/// `variance`, the result carries the variance of each pixel's merged mean, from the spread of the
-/// frames it took (the centre's estimated noise where it took too few to tell).
+/// pixels; `tracks` gives each frame's positions of those pixels (`None`: unreachable). The result
+/// carries the variance of each pixel's merged mean, from the spread of the frames it took (the
+/// centre's estimated noise where it took too few to tell).
 pub fn merge(
     frames: &[Option<&RenderSet>],
     tracks: &[Option<Vec<[f32; 2]>>],
     centre: usize,
-    variance: bool,
 ) -> Merged {
     let base = frames[centre].expect("the centre frame is present");
     let (w, h) = base.dims();
@@ -181,8 +178,9 @@ pub fn merge(
         .iter()
         .map(|(f, img)| (f, img.channels()))
         .collect();
-    let width: usize =
-        3 + features.iter().map(|(_, c)| c).sum::<usize>() + if variance { 3 } else { 0 };
+    // The weighted means (colour, features), then the colour's variance.
+    let means = 3 + features.iter().map(|(_, c)| c).sum::<usize>();
+    let width = means + 3;
     let used: Vec<(usize, &RenderSet, &[[f32; 2]])> = frames
         .iter()
         .zip(tracks)
@@ -196,6 +194,7 @@ pub fn merge(
         .enumerate()
         .map(|(y, row)| {
             let mut totals = vec![0.0f64; frames.len()];
+            let mut sums = vec![0.0f64; means];
             for x in 0..w {
                 let px = &mut row[x * width..(x + 1) * width];
                 merge_pixel(
@@ -206,8 +205,8 @@ pub fn merge(
                     &used,
                     centre,
                     (x, y),
-                    variance,
                     px,
+                    &mut sums,
                     &mut totals,
                 );
             }
@@ -236,14 +235,12 @@ pub fn merge(
             .expect("a feature keeps its channel count");
         offset += c;
     }
-    if variance {
-        set.noise.variance = Some(plane(offset, 3));
-    }
+    set.noise.variance = Some(plane(offset, 3));
     Merged { set, weights }
 }
 
-/// One output pixel: the weighted means (and the variance of the colour's) into `px`, each
-/// frame's weight added to `totals`.
+/// One output pixel: the weighted means and the variance of the colour's into `px`, each frame's
+/// weight added to `totals`; `sums` is the row's scratch, one slot a mean.
 #[allow(clippy::too_many_arguments)]
 fn merge_pixel(
     base: &RenderSet,
@@ -253,14 +250,18 @@ fn merge_pixel(
     used: &[(usize, &RenderSet, &[[f32; 2]])],
     centre: usize,
     (x, y): (usize, usize),
-    variance: bool,
     px: &mut [f32],
+    sums: &mut [f64],
     totals: &mut [f64],
 ) {
     let w = base.dims().0;
     let i = y * w + x;
-    let width = px.len();
-    let mut sums = vec![0.0f64; width];
+    sums.fill(0.0);
+    // The centre's 3×3 statistics of each feature, read once for all neighbours.
+    let centre_stats: Vec<Option<Stats>> = features
+        .iter()
+        .map(|&(f, _)| base.features.get(f).map(|a| window(a, (x, y))))
+        .collect();
     let (mut sum_w, mut sum_w2) = (0.0f64, 0.0f64);
     let mut sq = [0.0f64; 3];
     let mut sample = [0.0f64; MAX_CHANNELS];
@@ -273,12 +274,12 @@ fn merge_pixel(
                 continue;
             };
             let mut wt = patch_agreement(&base.color, noise, (x, y), &set.color, there);
-            for &(f, _) in features {
+            for (&(f, c), stats) in features.iter().zip(&centre_stats) {
                 if wt <= 0.0 {
                     break;
                 }
-                if let (Some(a), Some(b)) = (base.features.get(f), set.features.get(f)) {
-                    wt *= agreement(a, (x, y), b, there, Some(f));
+                if let (Some(stats), Some(b)) = (stats, set.features.get(f)) {
+                    wt *= agreement(stats, c, b, there, Some(f));
                 }
             }
             wt
@@ -314,25 +315,23 @@ fn merge_pixel(
             offset += c;
         }
     }
-    let means = 3 + features.iter().map(|(_, c)| c).sum::<usize>();
+    let means = sums.len();
     for k in 0..means {
         px[k] = (sums[k] / sum_w) as f32;
     }
-    if variance {
-        // Unbiased weighted spread of one frame's value, divided down to the merged mean's.
-        let dof = sum_w - sum_w2 / sum_w;
-        let shrink = sum_w2 / (sum_w * sum_w);
-        // Too few frames taken to tell a spread: the centre's own noise, estimated from the image
-        // as the noise stage would without the merge.
-        let own = estimate.at(x, y);
-        for k in 0..3 {
-            let one = if dof >= 0.5 {
-                ((sq[k] - sums[k] * sums[k] / sum_w) / dof).max(0.0)
-            } else {
-                own[k] as f64
-            };
-            px[means + k] = (one * shrink) as f32;
-        }
+    // Unbiased weighted spread of one frame's value, divided down to the merged mean's.
+    let dof = sum_w - sum_w2 / sum_w;
+    let shrink = sum_w2 / (sum_w * sum_w);
+    // Too few frames taken to tell a spread: the centre's own noise, estimated from the image as
+    // the noise stage would without the merge.
+    let own = estimate.at(x, y);
+    for k in 0..3 {
+        let one = if dof >= 0.5 {
+            ((sq[k] - sums[k] * sums[k] / sum_w) / dof).max(0.0)
+        } else {
+            own[k] as f64
+        };
+        px[means + k] = (one * shrink) as f32;
     }
 }
 
@@ -361,7 +360,7 @@ mod tests {
             frame(noisy(1), 0.5),
             frame(noisy(2), 0.5),
         );
-        let merged = merge(&[Some(&a), Some(&b), Some(&c)], &still(3), 1, true);
+        let merged = merge(&[Some(&a), Some(&b), Some(&c)], &still(3), 1);
         assert!(
             merged.weights.iter().all(|&w| w > 0.99),
             "{:?}",
@@ -371,7 +370,7 @@ mod tests {
         assert!((merged.set.color.at(3, 3)[0] as f64 - want).abs() < 1e-6);
         assert!(merged.set.noise.variance.unwrap().all_finite());
         let other = frame(noisy(1), 0.9);
-        let merged = merge(&[Some(&a), Some(&other), Some(&c)], &still(3), 1, false);
+        let merged = merge(&[Some(&a), Some(&other), Some(&c)], &still(3), 1);
         assert_eq!(merged.weights[0], 0.0);
         assert_eq!(merged.set.color, other.color);
     }
@@ -382,7 +381,7 @@ mod tests {
         let b = frame(|_, _| 0.7, 0.5);
         let mut tracks = still(3);
         tracks[2] = None;
-        let merged = merge(&[None, Some(&a), Some(&b)], &tracks, 1, true);
+        let merged = merge(&[None, Some(&a), Some(&b)], &tracks, 1);
         assert_eq!(merged.weights, [0.0, 1.0, 0.0]);
         assert_eq!(merged.set.color, a.color);
     }

@@ -21,12 +21,8 @@ pub use crate::spec::MAX_TEMPORAL_RADIUS as MAX_RADIUS;
 /// A shot denoised frame by frame with its neighbours.
 pub struct Shot {
     window: Window,
-    radius: usize,
     /// A neighbour that cannot be read fails the frame instead of being left out.
     pub strict: bool,
-    /// Hand the pipeline the variance of each merged pixel mean (else it estimates the noise from
-    /// the merged image).
-    pub variance: bool,
     told_static: bool,
 }
 
@@ -42,9 +38,7 @@ impl Shot {
         }
         Ok(Shot {
             window: Window::new(radius),
-            radius,
             strict,
-            variance: true,
             told_static: false,
         })
     }
@@ -119,7 +113,7 @@ impl Shot {
         }
         let tracks = track(&slots, centre, dims);
         let renders: Vec<_> = sets.iter().map(|s| s.map(|s| &s.set)).collect();
-        let merged = merge(&renders, &tracks, centre, self.variance);
+        let merged = merge(&renders, &tracks, centre);
         let shares: Vec<String> = numbers
             .iter()
             .zip(&merged.weights)
@@ -148,14 +142,5 @@ impl Shot {
             frame: own.frame.clone(),
             motion: None,
         })
-    }
-
-    pub fn radius(&self) -> usize {
-        self.radius
-    }
-
-    /// Frames loaded now: at most 2R+1.
-    pub fn frames_held(&self) -> usize {
-        self.window.len()
     }
 }

@@ -2,6 +2,7 @@
 //! offsets chained frame by frame (t → t±1 → t±2 …), so a neighbour two frames away is found through
 //! the frame between. Without any motion pass the shot is taken as static (every pixel stays put).
 
+use super::reproject::nearest;
 use crate::image::Image;
 use crate::io::passes::MotionPass;
 
@@ -60,15 +61,13 @@ pub fn track(slots: &[Slot], centre: usize, (w, h): (usize, usize)) -> Vec<Optio
 /// Moves every position by the offset of the pixel it falls on (nearest: an offset averaged
 /// across an object's edge would point between the two motions).
 fn step(positions: &[[f32; 2]], offsets: &Image) -> Vec<[f32; 2]> {
-    let (w, h) = offsets.dims();
     positions
         .iter()
         .map(|&[x, y]| {
-            let (xi, yi) = (x.round(), y.round());
-            if !(xi >= 0.0 && yi >= 0.0 && (xi as usize) < w && (yi as usize) < h) {
+            let Some((xi, yi)) = nearest(offsets, [x, y]) else {
                 return NOWHERE;
-            }
-            let o = offsets.at(xi as usize, yi as usize);
+            };
+            let o = offsets.at(xi, yi);
             let moved = [x + o[0], y + o[1]];
             if moved.iter().all(|v| v.is_finite()) {
                 moved

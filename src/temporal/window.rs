@@ -66,13 +66,45 @@ impl Window {
             .range(first..=t.saturating_add(self.radius))
             .map(|(&n, h)| (n, h))
     }
+}
 
-    /// Frames held now (for tests of the bound).
-    pub fn len(&self) -> usize {
-        self.held.len()
-    }
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::image::Image;
+    use crate::render_set::RenderSet;
 
-    pub fn is_empty(&self) -> bool {
-        self.held.is_empty()
+    #[test]
+    fn a_long_shot_holds_at_most_2r_plus_1_frames_and_reads_each_once() {
+        let reads = std::cell::RefCell::new(Vec::new());
+        let load = |n: u64| -> Option<Result<LoadedSet>> {
+            reads.borrow_mut().push(n);
+            (1..=40).contains(&n).then(|| {
+                Ok(LoadedSet {
+                    dir: Default::default(),
+                    set: RenderSet::new(Image::filled(2, 2, 3, n as f32)),
+                    files: Vec::new(),
+                    sources: Vec::new(),
+                    reference: None,
+                    notes: Vec::new(),
+                    layered: false,
+                    frame: Default::default(),
+                    motion: None,
+                })
+            })
+        };
+        let mut window = Window::new(2);
+        for t in 1..=40 {
+            window.slide(t, &load).unwrap();
+            assert!(
+                window.held.len() <= 5,
+                "frame {t}: {} held",
+                window.held.len()
+            );
+            let numbers: Vec<u64> = window.frames(t).map(|(n, _)| n).collect();
+            assert_eq!(numbers.first(), Some(&t.saturating_sub(2)));
+        }
+        // Every frame of 0..=42 (0, 41 and 42 lie outside the shot) asked for once.
+        assert_eq!(*reads.borrow(), (0..=42).collect::<Vec<_>>());
     }
 }

@@ -28,9 +28,10 @@ pub(super) fn noise_variance(
     let mut worst = par_vec(0.0f64, w * h);
     let mut near_best = par_vec(f64::INFINITY, w * h);
     let mut along = par_vec(0u8, w * h);
+    let mut sq = par_vec(0.0, w * h);
     for (d, (dx, dy)) in DIRECTIONS.into_iter().enumerate() {
-        let mut sq = par_vec(0.0, w * h);
         sq.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+            row.fill(0.0);
             let (at, ahead, behind) = (
                 src.at(0, y, (0, 0)),
                 src.at(0, y, (dx, dy)),
