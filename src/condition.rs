@@ -10,6 +10,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::buffers::Buffers;
+use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::render_set::{Feature, FeatureSet, NoiseInputs};
 
@@ -130,6 +131,22 @@ pub fn sanitize_reference(reference: &mut Image) -> SanitizeReport {
         color_negative,
         ..SanitizeReport::default()
     }
+}
+
+/// Refuses a buffer none of whose samples is a number: a pass the renderer never wrote (or a
+/// crashed render), which sanitising would silently turn into black or "unknown". A buffer with
+/// some NaNs among numbers is sanitised as usual; infinite depths (the sky) are numbers.
+pub fn check_recorded(buffers: &Buffers) -> Result<()> {
+    for (name, img) in buffers.iter() {
+        let data = img.data();
+        if !data.is_empty() && data.par_iter().all(|v| v.is_nan()) {
+            return Err(Error::buffer(
+                name,
+                "every sample is NaN (the pass holds no values)",
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Sanitises the colour and every feature buffer in place.

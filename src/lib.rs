@@ -43,12 +43,14 @@ pub mod buffers;
 #[cfg(feature = "cli")]
 pub mod cli;
 pub mod condition;
+pub mod embed;
 pub mod error;
 pub mod features;
 pub mod filters;
 pub mod image;
 pub mod io;
 pub mod kernels;
+pub mod meter;
 pub mod metrics;
 pub mod options;
 pub mod pipeline;
@@ -63,6 +65,7 @@ pub mod study;
 pub mod temporal;
 
 pub use crate::buffers::Buffers;
+pub use crate::embed::{ImageView, ImageViewMut, Inputs, Layout};
 pub use crate::error::{Error, Result};
 pub use crate::image::Image;
 pub use crate::options::{CancelToken, DenoiseOptions, ProgressFn};

@@ -11,12 +11,16 @@ use crate::error::{Error, Result};
 /// Most worker threads accepted: far beyond any machine gsid runs on, so a larger count is a typo.
 pub const MAX_THREADS: usize = 1024;
 
-/// Told how far a run is: the fraction done (0 to 1, never decreasing) and the id of the stage
-/// that runs next (`done` at the end). Called on the thread that started the run.
+/// Told how far a run is: the fraction done (0 to 1, never decreasing) and the id of the
+/// pipeline stage running (`done` at the end, with 1). Called as each stage begins and, within the
+/// heavy stages, every few thousandths as rows finish; calls never overlap, but they may come from
+/// any of the run's threads, so keep it short (store the numbers, wake a UI).
 pub type ProgressFn = dyn Fn(f32, &str) + Send + Sync;
 
-/// Stops a run from another thread (a user pressing Esc): the run checks it before every stage,
-/// at every pyramid level, and ends with [`Error::Cancelled`], returning no image.
+/// Stops a run from another thread (a user pressing Esc): the run checks it before and after
+/// every stage, at every pyramid level and between the rows of its heavy kernels (walks,
+/// prefilter, noise estimate, regression), and ends with [`Error::Cancelled`], returning no image
+/// and writing no output.
 #[derive(Clone, Debug, Default)]
 pub struct CancelToken(Arc<AtomicBool>);
 
@@ -49,7 +53,7 @@ pub struct DenoiseOptions {
     pub progress_bar: bool,
     /// Called as the run goes (see [`ProgressFn`]).
     pub progress: Option<Arc<ProgressFn>>,
-    /// Checked before every stage (see [`CancelToken`]).
+    /// Checked between stages and rows (see [`CancelToken`]).
     pub cancel: Option<CancelToken>,
     /// Bytes the run may take at most: a run whose estimate
     /// ([`crate::Pipeline::peak_bytes`]) is larger is refused before any stage runs. `None`: no
@@ -75,12 +79,6 @@ impl DenoiseOptions {
         }
     }
 
-    /// Tells the progress callback, if any.
-    pub(crate) fn report(&self, fraction: f32, stage: &str) {
-        if let Some(progress) = &self.progress {
-            progress(fraction.clamp(0.0, 1.0), stage);
-        }
-    }
 }
 
 impl fmt::Debug for DenoiseOptions {

@@ -6,11 +6,12 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::buffers::{Buffers, COLOR};
-use crate::condition::{Conditioning, SanitizeReport};
+use crate::condition::{check_recorded, Conditioning, SanitizeReport};
 use crate::error::{Error, Result};
 use crate::filters::stage::{steps_per_pixel_allowed, MAX_STEPS_PER_PIXEL};
 use crate::filters::{self, Context, Stage, StageReport};
 use crate::image::Image;
+use crate::meter::Meter;
 use crate::options::DenoiseOptions;
 pub use crate::spec::{PipelineSpec, StageSpec, BUILTIN, OUTPUT_BUFFER};
 
@@ -98,9 +99,10 @@ impl Pipeline {
         options: &DenoiseOptions,
     ) -> Result<(Image, RunReport)> {
         let start = Instant::now();
+        check_recorded(buffers)?;
         let conditioning = Conditioning::apply(buffers);
         let mut ctx = Context::new(options.seed, options.progress_bar);
-        ctx.cancel = options.cancel.clone();
+        ctx.meter = Meter::new(options);
         for line in conditioning.notes() {
             ctx.note(line);
         }
@@ -112,7 +114,8 @@ impl Pipeline {
         }
         let count = self.stages.len().max(1) as f32;
         for (done, stage) in self.stages.iter().enumerate() {
-            options.report(done as f32 / count, stage.id());
+            let share = (done as f32 / count, (done + 1) as f32 / count);
+            ctx.meter.stage(share.0, share.1, stage.id());
             stage.execute(buffers, &mut ctx)?;
         }
         if let Some(color) = buffers.get_mut(COLOR) {
@@ -125,7 +128,7 @@ impl Pipeline {
             )
         })?;
         conditioning.undo(&mut out);
-        options.report(1.0, "done");
+        ctx.meter.finish();
         let report = RunReport {
             pipeline: self.name.clone(),
             sanitized: conditioning.sanitized,

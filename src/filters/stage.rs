@@ -10,7 +10,7 @@ use std::time::Instant;
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::image::Image;
-use crate::options::CancelToken;
+use crate::meter::Meter;
 pub use crate::spec::StageIo;
 
 /// What every stage run can use and report into.
@@ -24,8 +24,9 @@ pub struct Context {
     pub notes: Vec<String>,
     /// Per-stage timings and work, in order of execution.
     pub reports: Vec<StageReport>,
-    /// Checked before every stage runs.
-    pub cancel: Option<CancelToken>,
+    /// The run's cancellation and progress: checked before and after every stage, and between
+    /// rows by the heavy kernels.
+    pub meter: Meter,
 }
 
 impl Context {
@@ -36,7 +37,7 @@ impl Context {
             progress,
             notes: Vec::new(),
             reports: Vec::new(),
-            cancel: None,
+            meter: Meter::default(),
         }
     }
 
@@ -101,9 +102,7 @@ pub trait Stage: Send + Sync {
 
     /// Checks preconditions and cancellation, runs, and records the timing.
     fn execute(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<()> {
-        if ctx.cancel.as_ref().is_some_and(CancelToken::is_cancelled) {
-            return Err(Error::Cancelled);
-        }
+        ctx.meter.check()?;
         for name in self.requires() {
             buffers.require(&name).map_err(|_| {
                 Error::buffer(
@@ -117,6 +116,8 @@ pub trait Stage: Send + Sync {
         }
         let start = Instant::now();
         let walk_steps = self.execute_impl(buffers, ctx)?;
+        // A cancel seen inside the work left it unfinished: nothing of it is kept.
+        ctx.meter.check()?;
         ctx.reports.push(StageReport {
             id: self.id().to_string(),
             level: ctx.level,

@@ -192,6 +192,7 @@ impl Stage for AtrousStage {
         }
         for k in 0..p.iterations {
             // The colour feature is read from each pass's input, which gets cleaner every pass.
+            ctx.meter.check()?;
             let current = &color;
             let recipe = Recipe::new(
                 current,

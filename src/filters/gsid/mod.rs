@@ -215,6 +215,8 @@ pub fn run_gsid(
             .scaling()
             .sigma(params.sigma, buffers, color, params.exposure, ctx, label)?;
     let progress = Progress::new(ctx.progress, label, color.height() as u64);
+    let meter = &ctx.meter;
+    meter.pass(color.height());
     let features = FeatureSource::Strips {
         build: &features_for,
         rows: None,
@@ -223,7 +225,11 @@ pub fn run_gsid(
         mask: mask.as_deref(),
         seed: ctx.seed,
         level: ctx.level,
-        on_row: &|| progress.inc(1),
+        on_row: &|rows| {
+            progress.inc(rows as u64);
+            meter.rows(rows);
+            !meter.cancelled()
+        },
         ..WalkJob::new(color, features, &walk_params)
     })?;
     progress.finish();

@@ -11,6 +11,7 @@ use crate::image::{par_vec, Image};
 use crate::kernels::padded::{Margin, Padded};
 use crate::kernels::simd::{row_kernel, Kernel};
 use crate::kernels::trim::{self, LANES, MAX_PAIRS, PAIRS};
+use crate::meter::Meter;
 use crate::render_set::FeatureSet;
 
 /// Radius of the window of the raw estimate (5×5): the adjacent pairs are `trim::PAIRS`.
@@ -32,6 +33,16 @@ pub fn estimate(color: &Image, features: &FeatureSet) -> Image {
 
 /// [`estimate`] with a chosen kernel for the raw estimates (all give the same bits).
 pub fn estimate_with(kernel: Kernel, color: &Image, features: &FeatureSet) -> Image {
+    estimate_in(kernel, color, features, &Meter::default())
+}
+
+/// [`estimate`] in a run: its rows tell `meter` as they finish and are skipped once it is
+/// cancelled (the result is then unfinished, for the caller to throw away).
+pub fn estimate_metered(color: &Image, features: &FeatureSet, meter: &Meter) -> Image {
+    estimate_in(Kernel::detect(), color, features, meter)
+}
+
+fn estimate_in(kernel: Kernel, color: &Image, features: &FeatureSet, meter: &Meter) -> Image {
     let (w, h) = color.dims();
     let surface = Surface::new(features, (w, h));
     // Brought to albedo 1: bringing a neighbour to a pixel's albedo is then one factor per
@@ -45,6 +56,7 @@ pub fn estimate_with(kernel: Kernel, color: &Image, features: &FeatureSet) -> Im
     // `MAX_PAIRS`), kept apart: a byte for the count instead of a padded word.
     let mut sums = par_vec([0.0f64; 3], w * h);
     let mut dof = par_vec(0u8, w * h);
+    meter.pass(h);
     // Raw estimates on every other row: adjacent rows' 5×5 windows share 4 of their 5 rows, and
     // the 7×7 smoothing still reads every pair of the 9×9 around a pixel, so half the work reads
     // nearly the same noise.
@@ -53,6 +65,10 @@ pub fn estimate_with(kernel: Kernel, color: &Image, features: &FeatureSet) -> Im
         .enumerate()
         .filter(|(y, _)| y % 2 == 0)
         .for_each_init(Vec::new, |row, (y, (sums, dof))| {
+            if meter.cancelled() {
+                return;
+            }
+            meter.rows(2);
             row.resize(sums.len(), ([0.0; 3], 0));
             let (flat, mates, out) = (&flat, &mates, row.as_mut_slice());
             row_kernel!(kernel, raw_row(flat: &Padded, mates: &Mates, y: usize, out: &mut [([f64; 3], usize)]));
@@ -77,6 +93,9 @@ pub fn estimate_with(kernel: Kernel, color: &Image, features: &FeatureSet) -> Im
     }
     // The padded colour is not read again: its memory is free before the smoothed image's.
     drop(flat);
+    if meter.cancelled() {
+        return Image::new(w, h, 3);
+    }
     smooth(color, &surface, &mates, |j| (sums[j], dof[j] as usize))
 }
 

@@ -36,7 +36,7 @@ use crate::image::Image;
 use crate::render_set::NoiseInputs;
 
 pub(crate) use chi2::trimmed_chi2_mean;
-pub use from_image::{estimate, estimate_with};
+pub use from_image::{estimate, estimate_metered, estimate_with};
 pub use level::{color_scales, tone_level};
 pub use measured::{from_halves, smooth_measured};
 
@@ -146,7 +146,7 @@ impl Stage for NoiseStage {
                     ),
                 ))
             }
-            (None, _) => estimate(color, buffers.features()),
+            (None, _) => estimate_metered(color, buffers.features(), &ctx.meter),
         };
         buffers.insert(self.io.output.clone(), variance)?;
         Ok(0)

@@ -31,7 +31,7 @@ mod params;
 pub use estimate::{
     directional_variance, directional_with, line_aware_variance, variance, variance_with,
 };
-pub use nl_means::{filter, filter_with, MAX_PATCH, MAX_RADIUS};
+pub use nl_means::{filter, filter_metered, filter_with, MAX_PATCH, MAX_RADIUS};
 pub use params::{Kind, Params};
 
 use serde::{Deserialize, Serialize};
@@ -174,7 +174,9 @@ impl Stage for PrefilterStage {
                 Estimate::Directional => line_aware_variance(img, kind, p.keep),
                 Estimate::Trimmed => variance(img, kind, p.keep),
             };
-            let filtered = filter(img, &variance, kind, &p);
+            ctx.meter.check()?;
+            let filtered = filter_metered(img, &variance, kind, &p, &ctx.meter);
+            ctx.meter.check()?;
             buffers.insert(feature.name(), filtered)?;
         }
         Ok(0)

@@ -9,6 +9,7 @@ use crate::kernels::fastmath::exp_neg_row;
 use crate::kernels::padded::{Margin, Padded};
 use crate::kernels::simd::{row_kernel, Kernel};
 use crate::kernels::trim::{self, LANES};
+use crate::meter::Meter;
 
 /// Smallest variance (in the feature's units squared) a patch distance is divided by: a difference
 /// of 1 % of an albedo or normal component is one unit where the estimate reads no noise at all.
@@ -40,7 +41,19 @@ pub fn filter(img: &Image, variance: &[f32], kind: Kind, p: &Params) -> Image {
 
 /// [`filter`] with a chosen kernel for the weights' exponentials (all give the same bits).
 pub fn filter_with(kernel: Kernel, img: &Image, variance: &[f32], kind: Kind, p: &Params) -> Image {
-    filter_by(kernel, SPARSE, img, variance, kind, p)
+    filter_by(kernel, SPARSE, img, variance, kind, p, &Meter::default())
+}
+
+/// [`filter`] in a run: its bands tell `meter` as they finish and are skipped once it is
+/// cancelled (the result is then unfinished, for the caller to throw away).
+pub fn filter_metered(
+    img: &Image,
+    variance: &[f32],
+    kind: Kind,
+    p: &Params,
+    meter: &Meter,
+) -> Image {
+    filter_by(Kernel::detect(), SPARSE, img, variance, kind, p, meter)
 }
 
 /// A band is filtered pixel by pixel ([`filter_sparse`]) when fewer than one pixel in `SPARSE` is
@@ -57,6 +70,7 @@ fn filter_by(
     variance: &[f32],
     kind: Kind,
     p: &Params,
+    meter: &Meter,
 ) -> Image {
     let (w, h) = img.dims();
     let c = img.channels();
@@ -100,12 +114,17 @@ fn filter_by(
         ),
     };
     let mut out = img.par_clone();
+    meter.pass(h);
     out.data_mut()
         .par_chunks_mut(BAND * w * c)
         .enumerate()
         .for_each(|(band, rows)| {
+            if meter.cancelled() {
+                return;
+            }
             let nl = &nl;
-            row_kernel!(nl.kernel, filter_band(nl: &NlMeans, band: usize, rows: &mut [f32]))
+            row_kernel!(nl.kernel, filter_band(nl: &NlMeans, band: usize, rows: &mut [f32]));
+            meter.rows(BAND);
         });
     out
 }
@@ -450,8 +469,8 @@ mod tests {
                 .map(|i| if i % every == 0 { 2.5e-3 } else { 0.0 })
                 .collect();
             for kernel in [Kernel::Scalar, Kernel::Avx2] {
-                let offsets = filter_by(kernel, 0, &img, &v, kind, &p);
-                let pixels = filter_by(kernel, usize::MAX, &img, &v, kind, &p);
+                let offsets = filter_by(kernel, 0, &img, &v, kind, &p, &Meter::default());
+                let pixels = filter_by(kernel, usize::MAX, &img, &v, kind, &p, &Meter::default());
                 if img.dims().0 > 1 {
                     assert_ne!(offsets.data(), img.data(), "{kind:?}: nothing filtered");
                 }

@@ -230,6 +230,7 @@ impl Stage for PyramidStage {
         let mut coarse: Vec<Buffers> = Vec::with_capacity(n.saturating_sub(1));
         for l in 1..n {
             let finer = if l == 1 { &*buffers } else { &coarse[l - 2] };
+            ctx.meter.check()?;
             let next = levels::reduce_buffers(finer, &self.io.input, mask)?;
             coarse.push(next);
         }
@@ -258,6 +259,7 @@ impl Stage for PyramidStage {
         }
         denoised.reverse();
         ctx.level = saved_level;
+        ctx.meter.check()?;
         let out = blend::blend(
             denoised,
             &self.params.blend,

@@ -8,6 +8,7 @@ use super::planes::{Planes, GROUP, LANES, WIDE_GROUP};
 use super::window_sums::{window_sums_with, GroupSums, Taps};
 use crate::image::{par_vec, Image};
 use crate::kernels::simd::Kernel;
+use crate::meter::Meter;
 
 /// Output rows per parallel task; each task copies its rows plus the window's reach into planes.
 const BAND_ROWS: usize = 32;
@@ -22,6 +23,12 @@ const _: () = assert!(
 
 /// The fit of the noisy colour at every pixel, with its variance.
 pub fn regress_with(kernel: Kernel, inputs: Inputs, p: &Params) -> Fit {
+    regress_in(kernel, inputs, p, &Meter::default())
+}
+
+/// [`regress_with`] in a run: its bands tell `meter` as they finish and are skipped once it is
+/// cancelled (the fit is then unfinished, for the caller to throw away).
+pub fn regress_in(kernel: Kernel, inputs: Inputs, p: &Params, meter: &Meter) -> Fit {
     let kernel = kernel.or_portable();
     let (w, h) = inputs.noisy.dims();
     let mut color = Image::new(w, h, 3);
@@ -30,8 +37,10 @@ pub fn regress_with(kernel: Kernel, inputs: Inputs, p: &Params) -> Fit {
         return Fit { color, variance };
     }
     match kernel {
-        Kernel::Avx512 => fit_bands::<WIDE_GROUP>(kernel, inputs, p, &mut color, &mut variance),
-        _ => fit_bands::<GROUP>(kernel, inputs, p, &mut color, &mut variance),
+        Kernel::Avx512 => {
+            fit_bands::<WIDE_GROUP>(kernel, inputs, p, (&mut color, &mut variance), meter)
+        }
+        _ => fit_bands::<GROUP>(kernel, inputs, p, (&mut color, &mut variance), meter),
     }
     Fit { color, variance }
 }
@@ -41,10 +50,11 @@ fn fit_bands<const G: usize>(
     kernel: Kernel,
     inputs: Inputs,
     p: &Params,
-    color: &mut Image,
-    variance: &mut [f32],
+    (color, variance): (&mut Image, &mut [f32]),
+    meter: &Meter,
 ) {
     let (w, h) = inputs.noisy.dims();
+    meter.pass(h);
     let (r, cos) = (p.radius, p.normal_cos);
     let inv_albedo = 1.0 / (2.0 * p.albedo_sigma * p.albedo_sigma);
     color
@@ -53,6 +63,9 @@ fn fit_bands<const G: usize>(
         .zip(variance.par_chunks_mut(w * BAND_ROWS))
         .enumerate()
         .for_each(|(band, (out, out_var))| {
+            if meter.cancelled() {
+                return;
+            }
             let y0 = band * BAND_ROWS;
             let y1 = (y0 + BAND_ROWS).min(h);
             let planes = Planes::build(inputs, p, y0, y1);
@@ -83,6 +96,7 @@ fn fit_bands<const G: usize>(
                     }
                 }
             }
+            meter.rows(y1 - y0);
         });
 }
 

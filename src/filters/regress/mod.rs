@@ -45,7 +45,7 @@ mod window_sums;
 
 pub use fit::regress_with;
 pub use params::{Fit, Inputs, Params, DEMODULATION_EPS, MAX_RADIUS};
-pub use shrink::{keep, mix, refine, refine_with};
+pub use shrink::{keep, mix, refine, refine_metered, refine_with};
 pub use window_sums::falloff;
 
 use serde::{Deserialize, Serialize};
@@ -190,7 +190,7 @@ impl Stage for RegressStage {
         if self.params.demodulate && albedo.is_none() {
             ctx.note(format!("{}: no albedo buffer; not demodulating", self.id));
         }
-        let out = refine(
+        let out = refine_metered(
             Inputs {
                 noisy,
                 filtered,
@@ -199,6 +199,7 @@ impl Stage for RegressStage {
                 normal,
             },
             &self.params.kernel_params(),
+            &ctx.meter,
         );
         buffers.insert(self.io.output.clone(), out)?;
         Ok(0)

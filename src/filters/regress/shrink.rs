@@ -3,10 +3,11 @@
 
 use rayon::prelude::*;
 
-use super::fit::regress_with;
+use super::fit::{regress_in, regress_with};
 use super::params::{Fit, Inputs, Params};
 use crate::image::Image;
 use crate::kernels::simd::Kernel;
+use crate::meter::Meter;
 
 /// Relative size of the fit's rounding error: a fit this close to the filtered value leaves it.
 const ROUNDING: f64 = 1e-5;
@@ -19,6 +20,13 @@ pub fn refine(inputs: Inputs, p: &Params) -> Image {
 /// [`refine`] with a chosen row kernel (all give the same bits).
 pub fn refine_with(kernel: Kernel, inputs: Inputs, p: &Params) -> Image {
     let fit = regress_with(kernel, inputs, p);
+    mix(inputs.filtered, &fit)
+}
+
+/// [`refine`] in a run: the fit's bands tell `meter` and stop once it is cancelled (the result is
+/// then unfinished, for the caller to throw away).
+pub fn refine_metered(inputs: Inputs, p: &Params, meter: &Meter) -> Image {
+    let fit = regress_in(Kernel::detect(), inputs, p, meter);
     mix(inputs.filtered, &fit)
 }
 

@@ -119,6 +119,7 @@ impl Stage for ReliabilityStage {
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
         let p = self.params.kernel_params();
         for &feature in &self.features {
+            ctx.meter.check()?;
             let Some(img) = buffers.features().get(feature) else {
                 ctx.note(format!(
                     "{}: no {} buffer; not gated",

@@ -48,12 +48,14 @@ struct Scratch {
 }
 
 /// The fast kernels on a whole image: parallel over bands of [`BAND_ROWS`] rows, neighbour terms
-/// precomputed per band, window terms per start pixel. `on_row` is called once per finished row.
+/// precomputed per band, window terms per start pixel. `on_row(n)` is told of every finished row (n = 1) and
+/// asked before a band starts (n = 0); when it returns false (the run was cancelled) the remaining
+/// rows are skipped.
 pub(super) fn denoise(
     kernel: Kernel,
     input: &WalkInput,
     params: &WalkParams,
-    on_row: &(dyn Fn() + Sync),
+    on_row: &(dyn Fn(usize) -> bool + Sync),
 ) -> (Image, WalkStats) {
     let (w, h) = input.color.dims();
     let steps = AtomicU64::new(0);
@@ -112,7 +114,7 @@ impl<'a> Band<'a> {
         params: &WalkParams,
         ys: Range<usize>,
         rows: &mut [f32],
-        on_row: &(dyn Fn() + Sync),
+        on_row: &(dyn Fn(usize) -> bool + Sync),
     ) -> u64 {
         let Band {
             kernel,
@@ -122,6 +124,9 @@ impl<'a> Band<'a> {
         } = *self;
         let (w, h) = input.color.dims();
         let (y_begin, y_end) = (ys.start, ys.end);
+        if !on_row(0) {
+            return 0;
+        }
         SCRATCH.with_borrow_mut(|scratch| {
             let (near, pairs) = match radius {
                 Some(r) => {
@@ -231,7 +236,9 @@ impl<'a> Band<'a> {
                         scratch.accs[b].write(input.color.pixel(i0), &mut row[3 * x0..3 * x0 + 3]);
                     }
                 }
-                on_row();
+                if !on_row(1) {
+                    break;
+                }
             }
             band_steps
         })

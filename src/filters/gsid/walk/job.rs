@@ -59,8 +59,9 @@ pub struct WalkJob<'a> {
     pub level: u32,
     pub params: &'a WalkParams,
     pub engine: Engine,
-    /// Called once per finished row (for progress bars).
-    pub on_row: &'a (dyn Fn() + Sync),
+    /// Told of finished rows (`on_row(1)`, for progress) and asked before a band of rows starts
+    /// (`on_row(0)`); false skips the remaining rows (a cancelled run, whose result is thrown away).
+    pub on_row: &'a (dyn Fn(usize) -> bool + Sync),
 }
 
 impl<'a> WalkJob<'a> {
@@ -74,7 +75,7 @@ impl<'a> WalkJob<'a> {
             level: 0,
             params,
             engine: Engine::default(),
-            on_row: &|| {},
+            on_row: &|_| true,
         }
     }
 }

@@ -17,11 +17,11 @@ fn neighbour(x: usize, y: usize, k: usize, w: usize, h: usize) -> Option<(usize,
 }
 
 /// [`Engine::Reference`](super::job::Engine::Reference): every logit recomputed from the
-/// features, on one thread. `on_row` is called once per finished row.
+/// features, on one thread. `on_row` is called once per finished row; false skips the remaining rows.
 pub(super) fn denoise(
     input: &WalkInput,
     params: &WalkParams,
-    on_row: &(dyn Fn() + Sync),
+    on_row: &(dyn Fn(usize) -> bool + Sync),
 ) -> (Image, WalkStats) {
     let (w, h) = input.color.dims();
     let inv = inv_two_sigma2(params.sigma);
@@ -76,7 +76,9 @@ pub(super) fn denoise(
             }
             acc.write(input.color.pixel(i0), out.pixel_mut(i0));
         }
-        on_row();
+        if !on_row(1) {
+            break;
+        }
     }
     (out, stats)
 }
