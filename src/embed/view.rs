@@ -134,6 +134,49 @@ impl Layout {
     }
 }
 
+/// The elements a raw strided image spans: `(first, count)` relative to its pixel (0, 0), or an
+/// error when the shape is empty or the span does not fit the address space.
+fn raw_span(
+    ptr_is_null: bool,
+    (width, height, channels): (usize, usize, usize),
+    strides: [isize; 3],
+) -> std::result::Result<(isize, usize), String> {
+    if width == 0 || height == 0 || channels == 0 {
+        return Err(format!("is empty ({width}x{height} with {channels} channels)"));
+    }
+    if ptr_is_null {
+        return Err("is a null pointer".into());
+    }
+    let (mut lo, mut hi) = (0i128, 0i128);
+    for (n, stride) in [height, width, channels].into_iter().zip(strides) {
+        let reach = (n as i128 - 1) * stride as i128;
+        lo += reach.min(0);
+        hi += reach.max(0);
+    }
+    let count = hi - lo + 1;
+    if count > (isize::MAX as i128) / 4 {
+        return Err("spans more memory than exists".into());
+    }
+    Ok((lo as isize, count as usize))
+}
+
+/// A layout from raw strides (in elements) and the first element's place in its span.
+fn raw_layout(
+    (width, height, channels): (usize, usize, usize),
+    strides: [isize; 3],
+    first: isize,
+) -> Layout {
+    Layout {
+        width,
+        height,
+        channels,
+        origin: (-first) as usize,
+        row_stride: strides[0],
+        pixel_stride: strides[1],
+        channel_stride: strides[2],
+    }
+}
+
 /// A borrowed image to read.
 #[derive(Clone, Copy, Debug)]
 pub struct ImageView<'a> {
@@ -149,6 +192,25 @@ impl<'a> ImageView<'a> {
     /// Row-major, interleaved, no gaps.
     pub fn packed(data: &'a [f32], width: usize, height: usize, channels: usize) -> Self {
         Self::new(data, Layout::packed(width, height, channels))
+    }
+
+    /// A view of memory a foreign caller owns (C, NumPy): `ptr` is pixel (0, 0)'s first channel,
+    /// `strides` the elements from a row, a pixel and a channel to the next (any sign). The error
+    /// (an empty shape, a null pointer) is for the caller to put under the buffer's name.
+    ///
+    /// # Safety
+    /// Every sample `ptr + y·strides[0] + x·strides[1] + c·strides[2]` and everything between
+    /// the lowest and the highest of them must be readable `f32`s of one allocation, not written
+    /// by anyone for `'a`.
+    pub unsafe fn from_raw(
+        ptr: *const f32,
+        shape: (usize, usize, usize),
+        strides: [isize; 3],
+    ) -> std::result::Result<Self, String> {
+        let (first, count) = raw_span(ptr.is_null(), shape, strides)?;
+        // SAFETY: the caller vouches for the span from the lowest sample to the highest.
+        let data = unsafe { std::slice::from_raw_parts(ptr.offset(first), count) };
+        Ok(Self::new(data, raw_layout(shape, strides, first)))
     }
 
     pub fn layout(&self) -> &Layout {
@@ -197,6 +259,21 @@ impl<'a> ImageViewMut<'a> {
     /// Row-major, interleaved, no gaps.
     pub fn packed(data: &'a mut [f32], width: usize, height: usize, channels: usize) -> Self {
         Self::new(data, Layout::packed(width, height, channels))
+    }
+
+    /// [`ImageView::from_raw`] for writing.
+    ///
+    /// # Safety
+    /// As [`ImageView::from_raw`], the span writable and read or written by no one else for `'a`.
+    pub unsafe fn from_raw(
+        ptr: *mut f32,
+        shape: (usize, usize, usize),
+        strides: [isize; 3],
+    ) -> std::result::Result<Self, String> {
+        let (first, count) = raw_span(ptr.is_null(), shape, strides)?;
+        // SAFETY: the caller vouches for the span from the lowest sample to the highest.
+        let data = unsafe { std::slice::from_raw_parts_mut(ptr.offset(first), count) };
+        Ok(Self::new(data, raw_layout(shape, strides, first)))
     }
 
     pub fn layout(&self) -> &Layout {
