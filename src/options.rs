@@ -78,7 +78,6 @@ impl DenoiseOptions {
             _ => Ok(f()),
         }
     }
-
 }
 
 impl fmt::Debug for DenoiseOptions {

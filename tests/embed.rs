@@ -2,6 +2,8 @@
 //! the owned (`Vec`) path whatever the layout, names the buffer at fault, and leaves the caller's
 //! buffer untouched when the run fails or is cancelled.
 
+mod common;
+
 use gsid::{
     Buffers, CancelToken, DenoiseOptions, Error, Feature, Image, ImageView, ImageViewMut, Inputs,
     Layout, PipelineSpec, RenderSet,
@@ -18,7 +20,12 @@ fn colour() -> Image {
 }
 
 fn albedo() -> Image {
-    Image::from_fn(W, H, 3, |x, _, c| if x < W / 2 { 0.8 } else { 0.2 + 0.1 * c as f32 })
+    Image::from_fn(
+        W,
+        H,
+        3,
+        |x, _, c| if x < W / 2 { 0.8 } else { 0.2 + 0.1 * c as f32 },
+    )
 }
 
 fn normal() -> Image {
@@ -91,7 +98,11 @@ fn strided_views_give_the_bits_of_the_owned_path() {
             .denoise_into(&inputs, &mut out, &DenoiseOptions::seeded(5))
             .unwrap();
         for (px, want) in fb.chunks_exact(4).zip(want.data().chunks_exact(3)) {
-            assert_eq!(px[..3].iter().map(|v| v.to_bits()).collect::<Vec<_>>(), want.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), "{name}");
+            assert_eq!(
+                px[..3].iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                want.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                "{name}"
+            );
             assert_eq!(px[3], 0.5);
         }
     }
@@ -148,7 +159,10 @@ fn wrong_shapes_and_sizes_name_the_buffer() {
     // An albedo of another size.
     let small = ImageView::packed(&a.data()[..(W - 1) * H * 3], W - 1, H, 3);
     let err = run(Inputs::new(color).with(Feature::Albedo, small));
-    assert!(err.starts_with("buffer `albedo`: is 36x23 but colour is 37x23"), "{err}");
+    assert!(
+        err.starts_with("buffer `albedo`: is 36x23 but colour is 37x23"),
+        "{err}"
+    );
     // A depth of three channels.
     let err = run(Inputs::new(color).with(Feature::Depth, ImageView::packed(a.data(), W, H, 3)));
     assert!(err.starts_with("buffer `depth`: has 3 channels"), "{err}");
@@ -158,7 +172,10 @@ fn wrong_shapes_and_sizes_name_the_buffer() {
     assert!(err.starts_with("buffer `normal`: "), "{err}");
     // A colour of one channel.
     let err = run(Inputs::new(ImageView::packed(&c.data()[..W * H], W, H, 1)));
-    assert!(err.starts_with("buffer `color`: has 1 channels, expected 3"), "{err}");
+    assert!(
+        err.starts_with("buffer `color`: has 1 channels, expected 3"),
+        "{err}"
+    );
     // An output of the wrong size, before any work.
     let inputs = Inputs::new(color);
     let mut out = ImageViewMut::packed(&mut fb[..W * (H - 1) * 3], W, H - 1, 3);
@@ -167,4 +184,23 @@ fn wrong_shapes_and_sizes_name_the_buffer() {
         .unwrap_err()
         .to_string();
     assert!(err.starts_with("buffer `out`: is 37x22"), "{err}");
+}
+
+#[test]
+fn the_command_line_refuses_a_pass_of_nothing_but_nan_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let set = RenderSet::new(colour())
+        .with(Feature::Albedo, Image::filled(W, H, 3, f32::NAN))
+        .unwrap();
+    common::write_set(&dir.path().join("set"), &Buffers::from(set));
+    let out = dir.path().join("out.exr");
+    let run = common::gsid(&[
+        "denoise",
+        "-q",
+        dir.path().join("set").to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    common::assert_bad_input(&run, "buffer `albedo`: every sample is NaN");
+    assert!(!out.exists());
 }

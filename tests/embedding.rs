@@ -42,7 +42,11 @@ fn cli_on_three_buffers(dir: &Path) -> Image {
     let set = io::load_render_set(&root().join(FIXTURE)).unwrap().set;
     let albedo = set.features.get(gsid::Feature::Albedo).unwrap();
     let normal = set.features.get(gsid::Feature::Normal).unwrap();
-    for (name, img) in [("color", &set.color), ("albedo", albedo), ("normal", normal)] {
+    for (name, img) in [
+        ("color", &set.color),
+        ("albedo", albedo),
+        ("normal", normal),
+    ] {
         io::write_exr(&dir.join(format!("{name}.exr")), img).unwrap();
         raw(img, &dir.join(format!("{name}.f32")));
     }
@@ -128,7 +132,14 @@ fn the_python_package_passes_its_tests() {
         return;
     }
     let run = Command::new(python.unwrap())
-        .args(["-m", "pytest", "-q", "-p", "no:cacheprovider", "python/tests"])
+        .args([
+            "-m",
+            "pytest",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "python/tests",
+        ])
         .current_dir(root())
         .env("GSID_BIN", env!("CARGO_BIN_EXE_gsid"))
         .output()

@@ -44,7 +44,10 @@ fn progress_is_told_stage_by_stage_in_order_and_ends_at_one() {
             next += 1;
             continue;
         }
-        assert!(next > 0 && *stage == ids[next - 1], "{stage} at {f}: {seen:?}");
+        assert!(
+            next > 0 && *stage == ids[next - 1],
+            "{stage} at {f}: {seen:?}"
+        );
         assert!(*f < next as f32 / count, "{stage} at {f}: {seen:?}");
     }
     assert_eq!(next, ids.len(), "{seen:?}");
@@ -59,7 +62,9 @@ fn larger_buffers() -> Buffers {
     let noisy: Vec<f32> = (0..w * h * 3)
         .map(|i| 0.2 + 0.3 * ((i * 7919 % 17) as f32 / 17.0))
         .collect();
-    let albedo: Vec<f32> = (0..w * h * 3).map(|i| 0.3 + 0.4 * ((i / 3 / w) % 2) as f32).collect();
+    let albedo: Vec<f32> = (0..w * h * 3)
+        .map(|i| 0.3 + 0.4 * ((i / 3 / w) % 2) as f32)
+        .collect();
     let set = RenderSet::new(Image::from_vec(w, h, 3, noisy).unwrap())
         .with(Feature::Albedo, Image::from_vec(w, h, 3, albedo).unwrap())
         .unwrap();
@@ -93,7 +98,11 @@ fn a_cancel_inside_a_stage_stops_its_rows() {
         let pipeline = PipelineSpec::builtin(pipeline).unwrap().build().unwrap();
         let cancel = CancelToken::new();
         let trigger = cancel.clone();
-        let start = pipeline.stages.iter().position(|s| s.id() == stage).unwrap();
+        let start = pipeline
+            .stages
+            .iter()
+            .position(|s| s.id() == stage)
+            .unwrap();
         let share = start as f32 / pipeline.stages.len() as f32;
         let after = Arc::new(Mutex::new(Vec::<(f32, String)>::new()));
         let sink = after.clone();

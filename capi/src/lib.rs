@@ -120,7 +120,9 @@ fn guard(f: impl FnOnce() -> Result<(), Error>) -> GsidStatus {
                 .map(String::as_str)
                 .or_else(|| panic.downcast_ref::<&str>().copied())
                 .unwrap_or("unknown");
-            set_error(&format!("internal error in gsid (please report it): {what}"));
+            set_error(&format!(
+                "internal error in gsid (please report it): {what}"
+            ));
             GsidStatus::Internal
         }
     }
@@ -250,14 +252,20 @@ pub unsafe extern "C" fn gsid_pipeline_set(
 pub unsafe extern "C" fn gsid_pipeline_free(pipeline: *mut GsidPipeline) {
     if !pipeline.is_null() {
         // SAFETY: made by Box::into_raw in `store`, freed once.
-        let _ = catch_unwind(AssertUnwindSafe(|| drop(unsafe { Box::from_raw(pipeline) })));
+        let _ = catch_unwind(AssertUnwindSafe(|| {
+            drop(unsafe { Box::from_raw(pipeline) })
+        }));
     }
 }
 
 /// Strides with 0 read as packed.
 fn strides(channels: usize, width: usize, row: isize, pixel: isize) -> [isize; 3] {
     let pixel = if pixel == 0 { channels as isize } else { pixel };
-    let row = if row == 0 { width as isize * pixel } else { row };
+    let row = if row == 0 {
+        width as isize * pixel
+    } else {
+        row
+    };
     [row, pixel, 1]
 }
 
@@ -354,7 +362,11 @@ fn run(
         return Err(Error::Cancelled);
     }
     let result = run_watched(
-        || catch_unwind(AssertUnwindSafe(|| pipeline.denoise_into(inputs, out, &run_options))),
+        || {
+            catch_unwind(AssertUnwindSafe(|| {
+                pipeline.denoise_into(inputs, out, &run_options)
+            }))
+        },
         || {
             if flagged() {
                 cancel.cancel();

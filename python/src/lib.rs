@@ -9,9 +9,7 @@ use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::Path;
 
 use gsid::embed::watch::{run_watched, ProgressRelay};
-use gsid::{
-    CancelToken, DenoiseOptions, Feature, ImageView, ImageViewMut, Inputs, PipelineSpec,
-};
+use gsid::{CancelToken, DenoiseOptions, Feature, ImageView, ImageViewMut, Inputs, PipelineSpec};
 use numpy::{PyArray1, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -80,10 +78,7 @@ fn borrow<'py>(name: &str, obj: &Bound<'py, PyAny>, channels: usize) -> PyResult
             Ok(dtype) => format!(
                 "is a {dtype} array; gsid takes float32 (convert it with .astype(numpy.float32))"
             ),
-            Err(_) => format!(
-                "is a {}, not a NumPy float32 array",
-                obj.get_type().name()?
-            ),
+            Err(_) => format!("is a {}, not a NumPy float32 array", obj.get_type().name()?),
         };
         return Err(buffer_error(name, msg));
     };
@@ -121,7 +116,11 @@ fn borrow<'py>(name: &str, obj: &Bound<'py, PyAny>, channels: usize) -> PyResult
     Ok(Borrowed {
         ptr: array.data() as *const f32,
         shape: (shape[1], shape[0], channels),
-        strides: [stride(0), stride(1), if shape.len() == 3 { stride(2) } else { 1 }],
+        strides: [
+            stride(0),
+            stride(1),
+            if shape.len() == 3 { stride(2) } else { 1 },
+        ],
         _keep: keep,
     })
 }
@@ -275,7 +274,11 @@ fn read_render<'py>(
         buffers.extend(set.features.take(feature).map(|img| (feature.name(), img)));
     }
     let [a, b] = gsid::render_set::NoiseInputs::HALVES;
-    buffers.extend(set.noise.variance.map(|v| (gsid::render_set::NoiseInputs::VARIANCE, v)));
+    buffers.extend(
+        set.noise
+            .variance
+            .map(|v| (gsid::render_set::NoiseInputs::VARIANCE, v)),
+    );
     if let Some([ha, hb]) = set.noise.halves {
         buffers.extend([(a, ha), (b, hb)]);
     }

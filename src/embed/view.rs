@@ -142,7 +142,9 @@ fn raw_span(
     strides: [isize; 3],
 ) -> std::result::Result<(isize, usize), String> {
     if width == 0 || height == 0 || channels == 0 {
-        return Err(format!("is empty ({width}x{height} with {channels} channels)"));
+        return Err(format!(
+            "is empty ({width}x{height} with {channels} channels)"
+        ));
     }
     if ptr_is_null {
         return Err("is a null pointer".into());
@@ -328,7 +330,10 @@ mod tests {
         let data: Vec<f32> = (0..20).map(|i| i as f32).collect();
         let view = ImageView::new(&data, Layout::strided(2, 2, 3, 10, 4));
         let img = view.to_image("color").unwrap();
-        assert_eq!(img.data(), &[0., 1., 2., 4., 5., 6., 10., 11., 12., 14., 15., 16.]);
+        assert_eq!(
+            img.data(),
+            &[0., 1., 2., 4., 5., 6., 10., 11., 12., 14., 15., 16.]
+        );
         // The same, columns flipped (negative pixel stride from the last pixel of row 0).
         let flipped = Layout {
             origin: 4,
@@ -344,7 +349,10 @@ mod tests {
     fn views_outside_their_slice_or_overlapping_are_refused_naming_the_buffer() {
         let data = vec![0.0; 11];
         let err = ImageView::packed(&data, 2, 2, 3).to_image("albedo");
-        assert!(err.unwrap_err().to_string().starts_with("buffer `albedo`: "));
+        assert!(err
+            .unwrap_err()
+            .to_string()
+            .starts_with("buffer `albedo`: "));
         let flipped = Layout {
             pixel_stride: -3,
             ..Layout::packed(1, 2, 3)
