@@ -97,7 +97,7 @@ int main(int argc, char **argv) {
     status = gsid_denoise(pipeline, &color_img, &albedo_img, &normal_img, NULL, &out_img, &options);
     CHECK(status == GSID_STATUS_OK, "gsid_denoise: %s", gsid_last_error());
     CHECK(strcmp(gsid_last_error(), "") == 0, "message after success: '%s'", gsid_last_error());
-    CHECK(told.calls >= 2 && told.backwards == 0 && told.last == 1.0f,
+    CHECK(told.calls >= 1 && told.backwards == 0 && told.last == 1.0f,
           "progress: %d calls, %d out of order, last %g", told.calls, told.backwards, told.last);
     for (size_t i = 0; i < w * h; i++) CHECK(out_rgba[4 * i + 3] == -1.0f, "alpha %zu written", i);
 
