@@ -141,7 +141,9 @@ impl Meter {
 mod tests {
     use super::*;
 
-    fn recorded() -> (Meter, Arc<Mutex<Vec<(f32, String)>>>) {
+    type Calls = Arc<Mutex<Vec<(f32, String)>>>;
+
+    fn recorded() -> (Meter, Calls) {
         let seen = Arc::new(Mutex::new(Vec::new()));
         let sink = seen.clone();
         let options = DenoiseOptions {
