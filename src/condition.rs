@@ -9,7 +9,7 @@
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::buffers::Buffers;
+use crate::buffers::{Buffers, COLOR};
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::render_set::{Feature, FeatureSet, NoiseInputs};
@@ -133,11 +133,13 @@ pub fn sanitize_reference(reference: &mut Image) -> SanitizeReport {
     }
 }
 
-/// Refuses a buffer none of whose samples is a number: a pass the renderer never wrote (or a
-/// crashed render), which sanitising would silently turn into black or "unknown". A buffer with
-/// some NaNs among numbers is sanitised as usual; infinite depths (the sky) are numbers.
+/// Refuses a colour or feature buffer none of whose samples is a number: a pass the renderer
+/// never wrote (or a crashed render), which sanitising would silently turn into black or
+/// "unknown". A buffer with some NaNs among numbers is sanitised as usual; infinite depths (the
+/// sky) are numbers; a variance of nothing but NaN says nothing and is sanitised to 0, as before.
 pub fn check_recorded(buffers: &Buffers) -> Result<()> {
-    for (name, img) in buffers.iter() {
+    let recorded = |name: &str| name == COLOR || Feature::from_name(name).is_some();
+    for (name, img) in buffers.iter().filter(|(name, _)| recorded(name)) {
         let data = img.data();
         if !data.is_empty() && data.par_iter().all(|v| v.is_nan()) {
             return Err(Error::buffer(
