@@ -96,7 +96,13 @@ fn estimate_in(kernel: Kernel, color: &Image, features: &FeatureSet, meter: &Met
     if meter.cancelled() {
         return Image::new(w, h, 3);
     }
-    smooth(color, &surface, &mates, |j| (sums[j], dof[j] as usize))
+    smooth(
+        color,
+        &surface,
+        &mates,
+        |j| (sums[j], dof[j] as usize),
+        meter,
+    )
 }
 
 /// A raw estimate's degrees of freedom as stored: its pairs, at most `MAX_PAIRS`.

@@ -4,6 +4,7 @@
 use super::smooth::{smooth, SMOOTH_RADIUS};
 use super::surface::Surface;
 use crate::image::Image;
+use crate::meter::Meter;
 use crate::render_set::FeatureSet;
 
 /// Smooths a variance the renderer measured (a `variance` buffer, noisy itself at few samples)
@@ -51,6 +52,7 @@ fn smooth_measured_raw(color: &Image, surface: &Surface, raw: &[([f64; 3], usize
         surface,
         &surface.mates(w, h, SMOOTH_RADIUS as usize),
         |j| raw[j],
+        &Meter::default(),
     )
 }
 

@@ -5,6 +5,7 @@ use rayon::prelude::*;
 
 use super::surface::{window, Mates, Surface};
 use crate::image::Image;
+use crate::meter::Meter;
 
 /// Radius of the window the raw estimates are averaged over (7×7).
 pub(super) const SMOOTH_RADIUS: isize = 3;
@@ -38,6 +39,7 @@ pub(super) fn smooth(
     surface: &Surface,
     mates: &Mates,
     raw: impl Fn(usize) -> ([f64; 3], usize) + Sync,
+    meter: &Meter,
 ) -> Image {
     let (w, h) = color.dims();
     let c = color.data();
@@ -46,6 +48,10 @@ pub(super) fn smooth(
         .par_chunks_mut(3)
         .enumerate()
         .for_each(|(i, px)| {
+            // A cancelled run's pixels are left unset: its result is thrown away.
+            if meter.cancelled() {
+                return;
+            }
             let mut acc = [0.0f64; 3];
             let mut dof = 0usize;
             for j in mates.of(i) {

@@ -9,6 +9,7 @@ use crate::image::{par_vec, Image};
 use crate::kernels::padded::{Margin, Padded};
 use crate::kernels::simd::{row_kernel, Kernel};
 use crate::kernels::trim::{self, LANES, MAX_PAIRS, PAIRS};
+use crate::meter::Meter;
 
 /// The planes [`variance`] and [`directional_variance`] read: the channels, then 1 where a pixel
 /// takes part (inside the image and known), else 0; a margin of zeros as wide as their reach.
@@ -41,14 +42,29 @@ pub fn variance(img: &Image, kind: Kind, keep: f64) -> Vec<f32> {
 
 /// [`variance`] with a chosen kernel (all give the same bits).
 pub fn variance_with(kernel: Kernel, img: &Image, kind: Kind, keep: f64) -> Vec<f32> {
-    trimmed_of(kernel, &reading_planes(img, kind), img.dims(), keep)
+    trimmed_of(
+        kernel,
+        &reading_planes(img, kind),
+        img.dims(),
+        keep,
+        &Meter::default(),
+    )
 }
 
 /// [`variance`] of the `w`×`h` image whose [`reading_planes`] are `planes`.
-fn trimmed_of(kernel: Kernel, planes: &Padded, (w, h): (usize, usize), keep: f64) -> Vec<f32> {
+fn trimmed_of(
+    kernel: Kernel,
+    planes: &Padded,
+    (w, h): (usize, usize),
+    keep: f64,
+    meter: &Meter,
+) -> Vec<f32> {
     let unit = 2.0 * trimmed_chi2_mean(keep);
     let mut out = par_vec(0.0f32, w * h);
     out.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, out)| {
+        if meter.cancelled() {
+            return;
+        }
         row_kernel!(kernel, variance_row(planes: &Padded, keep: f64, unit: f64, y: usize, out: &mut [f32]))
     });
     out
@@ -75,15 +91,30 @@ pub fn directional_variance(img: &Image, kind: Kind) -> Vec<f32> {
 
 /// [`directional_variance`] with a chosen kernel (all give the same bits).
 pub fn directional_with(kernel: Kernel, img: &Image, kind: Kind) -> Vec<f32> {
-    directional_of(kernel, &reading_planes(img, kind), img.dims())
+    directional_of(
+        kernel,
+        &reading_planes(img, kind),
+        img.dims(),
+        &Meter::default(),
+    )
 }
 
 /// [`directional_variance`] of the `w`×`h` image whose [`reading_planes`] are `planes`.
-fn directional_of(kernel: Kernel, planes: &Padded, (w, h): (usize, usize)) -> Vec<f32> {
+fn directional_of(
+    kernel: Kernel,
+    planes: &Padded,
+    (w, h): (usize, usize),
+    meter: &Meter,
+) -> Vec<f32> {
     let mut out = par_vec(0.0f32, w * h);
-    out.par_chunks_mut(w.max(1)).enumerate().for_each(
-        |(y, out)| row_kernel!(kernel, directional_row(planes: &Padded, y: usize, out: &mut [f32])),
-    );
+    out.par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(y, out)| {
+            if meter.cancelled() {
+                return;
+            }
+            row_kernel!(kernel, directional_row(planes: &Padded, y: usize, out: &mut [f32]))
+        });
     out
 }
 
@@ -140,12 +171,18 @@ fn pixel_directional<const L: usize>(planes: &Padded, x: usize, y: usize) -> [f3
 /// Per pixel, the larger of [`variance`] (with `keep`) and [`directional_variance`]: the noise
 /// either reading finds, the first where it is the same in every direction, the second along lines.
 pub fn line_aware_variance(img: &Image, kind: Kind, keep: f64) -> Vec<f32> {
+    line_aware_metered(img, kind, keep, &Meter::default())
+}
+
+/// [`line_aware_variance`] in a run: its rows are skipped once `meter` is cancelled (the result
+/// is then unfinished, for the caller to throw away).
+pub fn line_aware_metered(img: &Image, kind: Kind, keep: f64, meter: &Meter) -> Vec<f32> {
     let kernel = Kernel::detect();
     let planes = reading_planes(img, kind);
-    let mut variance = trimmed_of(kernel, &planes, img.dims(), keep);
+    let mut variance = trimmed_of(kernel, &planes, img.dims(), keep, meter);
     variance
         .par_iter_mut()
-        .zip(directional_of(kernel, &planes, img.dims()))
+        .zip(directional_of(kernel, &planes, img.dims(), meter))
         .for_each(|(trimmed, along)| *trimmed = trimmed.max(along));
     variance
 }

@@ -29,7 +29,8 @@ mod nl_means;
 mod params;
 
 pub use estimate::{
-    directional_variance, directional_with, line_aware_variance, variance, variance_with,
+    directional_variance, directional_with, line_aware_metered, line_aware_variance, variance,
+    variance_with,
 };
 pub use nl_means::{filter, filter_metered, filter_with, MAX_PATCH, MAX_RADIUS};
 pub use params::{Kind, Params};
@@ -171,7 +172,7 @@ impl Stage for PrefilterStage {
                 Feature::Albedo | Feature::Material | Feature::Shadow => Kind::Plain,
             };
             let variance = match self.params.estimate {
-                Estimate::Directional => line_aware_variance(img, kind, p.keep),
+                Estimate::Directional => line_aware_metered(img, kind, p.keep, &ctx.meter),
                 Estimate::Trimmed => variance(img, kind, p.keep),
             };
             ctx.meter.check()?;
