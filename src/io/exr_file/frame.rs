@@ -114,6 +114,14 @@ pub struct Channels {
 /// Reads [`Channels`]; every channel must cover the first part's data window at full resolution.
 pub fn read_all_channels(path: &Path) -> Result<Channels> {
     use exr::prelude::{ReadChannels, ReadLayers};
+    let bad = |e: exr::error::Error| Error::file(path, format!("not a readable EXR file ({e})"));
+    let file_len = std::fs::metadata(path)
+        .map_err(|e| Error::file(path, e))?
+        .len();
+    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(bad)?;
+    for header in meta.headers.iter().filter(|h| !h.deep) {
+        super::read::check_declared(path, header, file_len)?;
+    }
     let image = exr::prelude::read()
         .no_deep_data()
         .largest_resolution_level()
@@ -121,7 +129,7 @@ pub fn read_all_channels(path: &Path) -> Result<Channels> {
         .all_layers()
         .all_attributes()
         .from_file(path)
-        .map_err(|e| Error::file(path, format!("not a readable EXR file ({e})")))?;
+        .map_err(bad)?;
     let window = |l: &exr::image::Layer<_>| (l.attributes.layer_position, l.size);
     let first = image.layer_data.first().map(window);
     let mut channels = Vec::new();
