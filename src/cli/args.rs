@@ -178,12 +178,14 @@ pub struct DenoiseArgs {
     /// Print each stage's time (and each pyramid level's) after the run.
     #[arg(long)]
     pub timings: bool,
-    /// Write the denoised colour as half floats; copied channels (alpha, layers) keep their type.
+    /// Write the denoised colour and its alpha as half floats (the other layers of --keep-layers
+    /// keep their type).
     #[arg(long)]
     pub half: bool,
-    /// EXR compression: none, rle, zips, zip, piz, or the lossy pxr24, b44, b44a, dwaa, dwab.
-    #[arg(long, value_name = "METHOD", default_value = "rle", value_parser = compression)]
-    pub compression: io::Compression,
+    /// EXR compression: none, rle, zips, zip, piz, or the lossy pxr24, b44, b44a, dwaa, dwab
+    /// (default: the colour EXR's own, else zip).
+    #[arg(long, value_name = "METHOD", value_parser = compression)]
+    pub compression: Option<io::Compression>,
     /// Also write every other channel of the colour's EXR unchanged (a multilayer input's passes).
     #[arg(long)]
     pub keep_layers: bool,
