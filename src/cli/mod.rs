@@ -8,6 +8,7 @@ mod args;
 pub mod batch;
 mod denoise;
 mod frame;
+mod pattern;
 mod report;
 mod stdout;
 mod studies;
