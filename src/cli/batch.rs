@@ -294,10 +294,13 @@ impl Batch {
             }
             _ => None,
         };
+        // A note the same for every frame (the channel mapping, a missing buffer) is said once,
+        // at the first frame it applies to.
+        let said = std::cell::RefCell::new(std::collections::HashSet::new());
         for frame in self.frames {
             let label = frame.label;
             let say = |line: &str| {
-                if ctx.progress {
+                if ctx.progress && said.borrow_mut().insert(line.to_string()) {
                     bar.println(&format!("gsid: frame {label}: {line}"));
                 }
             };
