@@ -245,6 +245,10 @@ pub struct NamedInputs {
     /// Which layer of a multilayer input is a buffer, e.g. `--map albedo=ViewLayer.DiffCol` (repeatable).
     #[arg(long = "map", value_name = "BUFFER=LAYER")]
     pub maps: Vec<String>,
+    /// The view layer of a multilayer input (Blender's `ViewLayer`) every buffer is read from,
+    /// when the file holds several.
+    #[arg(long = "layer", value_name = "NAME")]
+    pub layer: Option<String>,
 }
 
 impl NamedInputs {
@@ -297,7 +301,9 @@ impl NamedInputs {
         // A colour file given first, beside buffers named one by one, is read as `--color FILE`.
         let features_named = self.slots()[2..].iter().any(|(_, p)| p.is_some());
         let color = match dir {
-            Some(dir) if !features_named => return io::load_input(dir, &maps),
+            Some(dir) if !features_named => {
+                return io::load_input_from(dir, &maps, self.layer.as_deref())
+            }
             Some(dir) if dir.is_dir() => {
                 return Err(Error::config(
                     "--albedo",
@@ -309,6 +315,12 @@ impl NamedInputs {
         };
         if !maps.is_empty() {
             return Err(Error::config("--map", "applies to a multilayer file input"));
+        }
+        if self.layer.is_some() {
+            return Err(Error::config(
+                "--layer",
+                "applies to a multilayer file input; name a buffer's layer as FILE.exr:LAYER",
+            ));
         }
         if let Some(ldr) = self.ldr.as_deref().filter(|p| !io::is_ldr(p)) {
             return Err(Error::file(

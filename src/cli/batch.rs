@@ -454,7 +454,11 @@ fn missing_frames(
         n if n > SHOWN => format!(" and {} more", n - SHOWN),
         _ => String::new(),
     };
-    let frames = if missing.len() == 1 { "frame" } else { "frames" };
+    let frames = if missing.len() == 1 {
+        "frame"
+    } else {
+        "frames"
+    };
     Err(Error::config(
         "--frames",
         format!(

@@ -8,6 +8,7 @@ mod args;
 pub mod batch;
 mod denoise;
 mod frame;
+mod hints;
 mod pattern;
 mod report;
 mod stdout;
@@ -27,7 +28,13 @@ use crate::io;
 pub fn main() -> i32 {
     keep_freed_memory();
     remove_outputs_on_signal();
-    let cli = match Cli::try_parse() {
+    let argv: Vec<std::ffi::OsString> = std::env::args_os().collect();
+    let parsed = Cli::try_parse_from(&argv);
+    if let Some(hint) = hints::quality_flag(&argv, parsed.is_err()) {
+        crate::progress::say_err!("gsid: error: {hint}");
+        return 2;
+    }
+    let cli = match parsed {
         Ok(cli) => cli,
         Err(e) => {
             // Help and version go to stdout (exit 0), usage errors to stderr (exit 2). Help that

@@ -46,7 +46,10 @@ impl LoadedSet {
         mut notes: Vec<String>,
         layered: bool,
     ) -> Self {
-        let folder = !layered && files.first().is_some_and(|(_, c)| is_folder_colour(c, &dir));
+        let folder = !layered
+            && files
+                .first()
+                .is_some_and(|(_, c)| is_folder_colour(c, &dir));
         let missing: Vec<&str> = set
             .features
             .missing()
