@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use clap::{Parser, Subcommand};
 
+use super::examples;
 use crate::error::{Error, Result};
 use crate::io;
 use crate::pipeline::{Pipeline, PipelineSpec, DEFAULT_PIPELINE};
@@ -14,7 +15,8 @@ use crate::run::RunContext;
 #[command(
     name = "gsid",
     version,
-    about = "Feature-guided stochastic denoising for path-traced renders"
+    about = "Feature-guided stochastic denoising for path-traced renders",
+    after_help = examples::TOP
 )]
 pub struct Cli {
     /// Silence the progress bar and notes on stderr.
@@ -30,16 +32,22 @@ pub struct Cli {
 pub enum Command {
     /// Denoise a render set folder (color.exr plus optional feature buffers), a multilayer EXR, a
     /// frame sequence (`beauty.####.exr`) or a folder of render-set folders.
+    #[command(after_help = examples::DENOISE)]
     Denoise(DenoiseArgs),
     /// Score an image against a reference: SSIM, PSNR, relMSE (ALGORITHM.md §5).
+    #[command(after_help = examples::EVAL)]
     Eval(EvalArgs),
     /// List the named pipelines.
+    #[command(after_help = examples::PIPELINES)]
     Pipelines,
     /// Render a scene file into a render set (fixture renderer).
+    #[command(after_help = examples::RENDER)]
     Render(crate::render::RenderArgs),
     /// Run a pipeline and variants of it (each stage removed, each feature weight zeroed, plain SID) and score them.
+    #[command(after_help = examples::ABLATE)]
     Ablate(AblateArgs),
     /// Run a pipeline over a grid of parameter values; time and score each setting, plot SSIM against seconds.
+    #[command(after_help = examples::SWEEP)]
     Sweep(SweepArgs),
 }
 

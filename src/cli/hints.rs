@@ -16,7 +16,19 @@ pub(super) fn quality_flag(args: &[OsString], parse_failed: bool) -> Option<Stri
         .map(|w| &w[1])?;
     let text = value.to_str()?;
     let known = OIDN_QUALITY.iter().any(|q| q.eq_ignore_ascii_case(text));
-    let stray = parse_failed && !text.starts_with('-') && !Path::new(text).exists();
+    let command = [
+        "denoise",
+        "eval",
+        "pipelines",
+        "render",
+        "ablate",
+        "sweep",
+        "help",
+    ];
+    let stray = parse_failed
+        && !text.starts_with('-')
+        && !command.contains(&text)
+        && !Path::new(text).exists();
     (known && !Path::new(text).exists() || stray).then(|| {
         format!(
             "-q is --quiet and takes no value (`-q {text}` is oidnDenoise's quality): choose the quality with -p fast|balanced|quality|full"

@@ -7,6 +7,7 @@
 mod args;
 pub mod batch;
 mod denoise;
+mod examples;
 mod frame;
 mod hints;
 mod pattern;
