@@ -85,7 +85,7 @@ fn remove_outputs_on_signal() {
 /// page by page, when it is next written, and every unmap stops the other cores to flush their TLBs.
 /// With two threads those faults and flushes contend, so stages that allocate much scale worst. One
 /// arena, no mapped chunks and no trimming make a freed buffer the next one's memory. Measured on
-/// 1 and 4 MP (README "Speed"): fewer faults, less system time, and a peak that moves by a few
+/// 1 and 4 MP (docs/RESULTS.md "Speed"): fewer faults, less system time, and a peak that moves by a few
 /// percent either way. Only the binary sets this; a program using the library keeps its own policy.
 fn keep_freed_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
