@@ -209,8 +209,8 @@ fn a_note_the_same_for_every_frame_is_said_once() {
     ]);
     let count = |s: &str| err.lines().filter(|l| l.contains(s)).count();
     assert_eq!(count("denoised result"), 1, "{err}");
-    assert_eq!(count("color ← "), 1, "{err}");
-    assert_eq!(count(" → "), 3, "each frame's result line stays: {err}");
+    assert_eq!(count("albedo ← "), 1, "the mapping once: {err}");
+    assert_eq!(count(") → "), 3, "each frame's result line stays: {err}");
 }
 
 #[test]

@@ -294,13 +294,14 @@ impl Batch {
             }
             _ => None,
         };
-        // A note the same for every frame (the channel mapping, a missing buffer) is said once,
-        // at the first frame it applies to.
+        // A note is said once a run, at the first frame it applies to (the channel mapping, a
+        // missing buffer, a clamp): notes of one kind differ from frame to frame only in numbers.
         let said = std::cell::RefCell::new(std::collections::HashSet::new());
         for frame in self.frames {
             let label = frame.label;
             let say = |line: &str| {
-                if ctx.progress && said.borrow_mut().insert(line.to_string()) {
+                let new = once_a_run(line).is_none_or(|key| said.borrow_mut().insert(key));
+                if ctx.progress && new {
                     bar.println(&format!("gsid: frame {label}: {line}"));
                 }
             };
@@ -467,4 +468,23 @@ fn missing_frames(
             pattern.text()
         ),
     ))
+}
+
+/// The key a note is said once a run by (its text with every number as `#`), or `None` for a line
+/// each frame says: its result (`IN (WxH) → OUT in …`), a skip, a timing.
+fn once_a_run(line: &str) -> Option<String> {
+    let per_frame =
+        line.contains(") → ") || line.starts_with("skipped, ") || line.starts_with("  ");
+    if per_frame {
+        return None;
+    }
+    let mut key = String::with_capacity(line.len());
+    for c in line.chars() {
+        if !c.is_ascii_digit() {
+            key.push(c);
+        } else if !key.ends_with('#') {
+            key.push('#');
+        }
+    }
+    Some(key)
 }
