@@ -73,7 +73,7 @@ fn readme_commands(text: &str) -> Vec<String> {
             continue;
         }
         if let Some(head) = trimmed.strip_suffix('\\') {
-            pending.push_str(head);
+            pending.push_str(head.trim_end());
             pending.push(' ');
             continue;
         }
