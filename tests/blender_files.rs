@@ -198,7 +198,7 @@ fn a_note_the_same_for_every_frame_is_said_once() {
         std::fs::copy(NOISY, shot.join(format!("render.{f:04}.exr"))).unwrap();
     }
     let pattern = shot.join("render.####.exr");
-    let out = tmp.path().join("den/render.####.exr");
+    let out = tmp.path().join("render.####.exr");
     let err = run_ok(&[
         "denoise",
         pattern.to_str().unwrap(),
