@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use clap::{Parser, Subcommand};
 
+use super::examples;
 use crate::error::{Error, Result};
 use crate::io;
 use crate::pipeline::{Pipeline, PipelineSpec, DEFAULT_PIPELINE};
@@ -14,7 +15,8 @@ use crate::run::RunContext;
 #[command(
     name = "gsid",
     version,
-    about = "Feature-guided stochastic denoising for path-traced renders"
+    about = "Feature-guided stochastic denoising for path-traced renders",
+    after_help = examples::TOP
 )]
 pub struct Cli {
     /// Silence the progress bar and notes on stderr.
@@ -30,16 +32,22 @@ pub struct Cli {
 pub enum Command {
     /// Denoise a render set folder (color.exr plus optional feature buffers), a multilayer EXR, a
     /// frame sequence (`beauty.####.exr`) or a folder of render-set folders.
+    #[command(after_help = examples::DENOISE)]
     Denoise(DenoiseArgs),
     /// Score an image against a reference: SSIM, PSNR, relMSE (ALGORITHM.md §5).
+    #[command(after_help = examples::EVAL)]
     Eval(EvalArgs),
     /// List the named pipelines.
+    #[command(after_help = examples::PIPELINES)]
     Pipelines,
     /// Render a scene file into a render set (fixture renderer).
+    #[command(after_help = examples::RENDER)]
     Render(crate::render::RenderArgs),
     /// Run a pipeline and variants of it (each stage removed, each feature weight zeroed, plain SID) and score them.
+    #[command(after_help = examples::ABLATE)]
     Ablate(AblateArgs),
     /// Run a pipeline over a grid of parameter values; time and score each setting, plot SSIM against seconds.
+    #[command(after_help = examples::SWEEP)]
     Sweep(SweepArgs),
 }
 
@@ -178,12 +186,14 @@ pub struct DenoiseArgs {
     /// Print each stage's time (and each pyramid level's) after the run.
     #[arg(long)]
     pub timings: bool,
-    /// Write the denoised colour as half floats; copied channels (alpha, layers) keep their type.
+    /// Write the denoised colour and its alpha as half floats (the other layers of --keep-layers
+    /// keep their type).
     #[arg(long)]
     pub half: bool,
-    /// EXR compression: none, rle, zips, zip, piz, or the lossy pxr24, b44, b44a, dwaa, dwab.
-    #[arg(long, value_name = "METHOD", default_value = "rle", value_parser = compression)]
-    pub compression: io::Compression,
+    /// EXR compression: none, rle, zips, zip, piz, or the lossy pxr24, b44, b44a, dwaa, dwab
+    /// (default: the colour EXR's own, else zip).
+    #[arg(long, value_name = "METHOD", value_parser = compression)]
+    pub compression: Option<io::Compression>,
     /// Also write every other channel of the colour's EXR unchanged (a multilayer input's passes).
     #[arg(long)]
     pub keep_layers: bool,
@@ -243,6 +253,10 @@ pub struct NamedInputs {
     /// Which layer of a multilayer input is a buffer, e.g. `--map albedo=ViewLayer.DiffCol` (repeatable).
     #[arg(long = "map", value_name = "BUFFER=LAYER")]
     pub maps: Vec<String>,
+    /// The view layer of a multilayer input (Blender's `ViewLayer`) every buffer is read from,
+    /// when the file holds several.
+    #[arg(long = "layer", value_name = "NAME")]
+    pub layer: Option<String>,
 }
 
 impl NamedInputs {
@@ -295,7 +309,9 @@ impl NamedInputs {
         // A colour file given first, beside buffers named one by one, is read as `--color FILE`.
         let features_named = self.slots()[2..].iter().any(|(_, p)| p.is_some());
         let color = match dir {
-            Some(dir) if !features_named => return io::load_input(dir, &maps),
+            Some(dir) if !features_named => {
+                return io::load_input_from(dir, &maps, self.layer.as_deref())
+            }
             Some(dir) if dir.is_dir() => {
                 return Err(Error::config(
                     "--albedo",
@@ -307,6 +323,12 @@ impl NamedInputs {
         };
         if !maps.is_empty() {
             return Err(Error::config("--map", "applies to a multilayer file input"));
+        }
+        if self.layer.is_some() {
+            return Err(Error::config(
+                "--layer",
+                "applies to a multilayer file input; name a buffer's layer as FILE.exr:LAYER",
+            ));
         }
         if let Some(ldr) = self.ldr.as_deref().filter(|p| !io::is_ldr(p)) {
             return Err(Error::file(

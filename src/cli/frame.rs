@@ -125,8 +125,14 @@ fn denoise_frame(
             "applies to EXR outputs only",
         ));
     }
+    // Blender writes ZIP; a render that came compressed one way goes back the same way.
+    let compression = args.compression.unwrap_or_else(|| {
+        frame
+            .compression()
+            .map_or(io::Compression::Zip, io::Compression::of_exr)
+    });
     let encoding = io::Encoding {
-        compression: args.compression,
+        compression,
         half: args.half,
         exposure: preview_exposure(args.exposure, &outputs)?,
     };
@@ -148,10 +154,15 @@ fn denoise_frame(
     for line in &set.notes {
         say(line);
     }
-    if args.compression.is_lossy() && (frame.has_alpha() || args.keep_layers) {
+    if compression.is_lossy() && (frame.has_alpha() || args.keep_layers) {
+        let from = if args.compression.is_some() {
+            "--compression"
+        } else {
+            "the input's compression,"
+        };
         say(&format!(
-            "--compression {} is lossy: the copied alpha and layers are not bit-exact",
-            args.compression.name()
+            "{from} {} is lossy: the copied alpha and layers are not bit-exact",
+            compression.name()
         ));
     }
     let read_seconds = start.elapsed().as_secs_f64();
