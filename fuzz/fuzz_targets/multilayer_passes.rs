@@ -37,7 +37,7 @@ fuzz_target!(|data: &[u8]| {
     if let Ok(loaded) = gsid::io::load_input(path, &maps) {
         let dims = loaded.set.color.dims();
         for feature in gsid::Feature::ALL {
-            if let Some(img) = loaded.set.get(feature) {
+            if let Some(img) = loaded.set.features.get(feature) {
                 assert_eq!(img.dims(), dims, "{feature:?} is not the colour's size");
                 assert_eq!(img.data().len(), dims.0 * dims.1 * img.channels());
             }
