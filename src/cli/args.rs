@@ -17,9 +17,13 @@ use crate::run::RunContext;
     about = "Feature-guided stochastic denoising for path-traced renders"
 )]
 pub struct Cli {
-    /// Silence the progress bar and notes on stderr.
+    /// Errors only on stderr: no progress, notes or summaries.
     #[arg(long, short, global = true)]
     pub quiet: bool,
+    /// Say more on stderr: `-v` the run's setup, each frame's inputs and stage times; `-vv` also
+    /// every progress step (debug).
+    #[arg(long, short, global = true, action = clap::ArgAction::Count, conflicts_with = "quiet")]
+    pub verbose: u8,
     #[command(subcommand)]
     pub command: Command,
 }
@@ -175,9 +179,13 @@ pub struct DenoiseArgs {
     /// outputs are written as computed, so it is an error when no output is a preview.
     #[arg(long, value_name = "EV", allow_negative_numbers = true)]
     pub exposure: Option<f32>,
-    /// Print each stage's time (and each pyramid level's) after the run.
+    /// Print each stage's time (and each pyramid level's) after the run (also with -v).
     #[arg(long)]
     pub timings: bool,
+    /// Seconds between progress lines when stderr is not a terminal (a render farm's log); 0: a
+    /// line at every step. A line is printed at each frame's end whatever this is.
+    #[arg(long, value_name = "SECONDS", default_value_t = super::meter::DEFAULT_EVERY, value_parser = seconds)]
+    pub progress_every: f64,
     /// Write the denoised colour as half floats; copied channels (alpha, layers) keep their type.
     #[arg(long)]
     pub half: bool,
@@ -195,6 +203,15 @@ pub struct DenoiseArgs {
     /// frame is merged from fewer neighbours, with a note).
     #[arg(long)]
     pub temporal_strict: bool,
+}
+
+fn seconds(text: &str) -> std::result::Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(s) if (0.0..=86_400.0).contains(&s) => Ok(s),
+        _ => Err(format!(
+            "`{text}` is not a number of seconds from 0 to 86400"
+        )),
+    }
 }
 
 fn compression(name: &str) -> std::result::Result<io::Compression, String> {

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use super::args::DenoiseArgs;
+use super::meter::{Meter, Verbosity};
 use super::report::{self, FrameReport, Outcome};
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
@@ -62,7 +63,7 @@ pub(super) fn denoise_or_skip(
     args: &DenoiseArgs,
     pipeline: &Pipeline,
     ctx: &RunContext,
-    stage_progress: bool,
+    meter: &Meter,
     say: &dyn Fn(&str),
     load: Option<Loader>,
 ) -> Result<Outcome> {
@@ -73,8 +74,9 @@ pub(super) fn denoise_or_skip(
             output: output.display().to_string(),
         });
     }
-    let report = denoise_frame(args, pipeline, ctx, stage_progress, say, load)?;
-    report::tell(&report, args.timings, say);
+    let report = denoise_frame(args, pipeline, ctx, meter, say, load)?;
+    let timings = args.timings || meter.verbosity() >= Verbosity::Verbose;
+    report::tell(&report, timings, say);
     Ok(Outcome::Done(Box::new(report)))
 }
 
@@ -84,7 +86,7 @@ fn denoise_frame(
     args: &DenoiseArgs,
     pipeline: &Pipeline,
     ctx: &RunContext,
-    stage_progress: bool,
+    meter: &Meter,
     say: &dyn Fn(&str),
     load: Option<Loader>,
 ) -> Result<FrameReport> {
@@ -160,9 +162,11 @@ fn denoise_frame(
     let mut buffers = Buffers::from(set.set);
     let options = DenoiseOptions {
         max_memory: Some(args.run.memory_limit()),
-        ..ctx.denoise_options(stage_progress)
+        progress: Some(meter.pipeline_progress()),
+        ..ctx.denoise_options(false)
     };
     let (out, report) = pipeline.run(&mut buffers, &options)?;
+    meter.writing();
     let write_start = Instant::now();
     let mut saved = Vec::new();
     for (name, pending) in pending_saves {
