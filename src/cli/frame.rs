@@ -68,6 +68,7 @@ pub(super) fn denoise_or_skip(
     load: Option<Loader>,
 ) -> Result<Outcome> {
     let output = &args.output;
+    io::remove_stale_beside(output);
     if args.skip_existing && output.as_os_str() != io::STDOUT && output.is_file() {
         say(&format!("skipped, {} exists", output.display()));
         return Ok(Outcome::Skipped {

@@ -186,9 +186,10 @@ impl Inner {
                 }
             }
             Shown::Lines => {
-                let due = s
-                    .last_line
-                    .is_none_or(|t| t.elapsed() >= self.every || self.every.is_zero());
+                // The first line comes one interval into the run: a run that fails at once (bad
+                // input) prints its one error line and nothing else.
+                let since = s.last_line.unwrap_or(s.start).elapsed();
+                let due = self.every.is_zero() || since >= self.every;
                 if force || due {
                     self.print(&s.line());
                     s.last_line = Some(Instant::now());
@@ -332,6 +333,8 @@ impl Meter {
         s.finished = (s.finished + 1).min(s.frames);
         s.fraction = None;
         match self.inner.shown {
+            // A failed frame's line is its error, printed by the caller.
+            Shown::Lines if how == "failed" => {}
             Shown::Lines => {
                 self.inner.print(&line);
                 s.last_line = Some(Instant::now());

@@ -28,6 +28,7 @@ pub use format::{check_output, write_image, Encoding, ImageFormat};
 pub use load::{colour_dims, is_render_set, load_input, load_named, load_render_set, split_layer};
 pub use loaded_set::{find_reference, LoadedSet};
 pub use output::{
-    remove_pending_outputs, write_exr, NewFolder, PendingFolder, PendingOutput, STDOUT,
+    remove_pending_outputs, remove_stale_beside, write_exr, NewFolder, PendingFolder,
+    PendingOutput, STDOUT,
 };
 pub use read::{is_ldr, read_color, read_image, read_text, srgb_to_linear};

@@ -136,6 +136,15 @@ fn parent_dir(path: &Path) -> PathBuf {
     }
 }
 
+/// Removes what dead runs left in the folder `path` will be in (`stale`), once a run and folder:
+/// also when no output is written there (every frame of a requeued chunk skipped).
+pub fn remove_stale_beside(path: &Path) {
+    let dir = parent_dir(path);
+    if path.as_os_str() != STDOUT && dir.is_dir() {
+        stale::sweep(&dir);
+    }
+}
+
 /// A temporary file or folder (`make`) named `.gsid-HOST-PID-*.tmp` in the folder `path` will be
 /// in, which must exist; what dead runs left there is removed first (`stale`).
 fn temp_beside<T>(
