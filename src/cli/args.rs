@@ -20,8 +20,8 @@ pub struct Cli {
     /// Errors only on stderr: no progress, notes or summaries.
     #[arg(long, short, global = true)]
     pub quiet: bool,
-    /// Say more on stderr: `-v` the run's setup, each frame's inputs and stage times; `-vv` also
-    /// every progress step (debug).
+    /// Say more on stderr (denoise): `-v` the run's setup (version, pipeline, seed, threads) and
+    /// each frame's stage times; `-vv` also every progress step (debug).
     #[arg(long, short, global = true, action = clap::ArgAction::Count, conflicts_with = "quiet")]
     pub verbose: u8,
     #[command(subcommand)]

@@ -433,7 +433,7 @@ impl Batch {
     }
 
     /// How many frames the batch denoises.
-    pub fn len(&self) -> usize {
+    pub fn frame_count(&self) -> usize {
         self.frames.len()
     }
 
@@ -465,6 +465,7 @@ impl Batch {
             _ => None,
         };
         for frame in self.frames {
+            let id = FrameId::of(frame.number, &frame.label);
             let label = frame.label;
             let say = |line: &str| {
                 meter.say_at(Verbosity::Normal, &format!("gsid: frame {label}: {line}"))
@@ -486,11 +487,7 @@ impl Batch {
                         frame: label.clone(),
                         source: Box::new(e),
                     };
-                    let id = match frame.number {
-                        Some(n) => FrameId::Number(n),
-                        None => FrameId::Name(label.clone()),
-                    };
-                    failed.push((id, e.exit_code()));
+                    failed.push((id.clone(), e.exit_code()));
                     let outcome = Outcome::Failed {
                         error: e.to_string(),
                         exit_code: e.exit_code(),
@@ -503,11 +500,7 @@ impl Batch {
                     outcome
                 }
             };
-            let frame = match frame.number {
-                Some(n) => FrameId::Number(n),
-                None => FrameId::Name(label),
-            };
-            entries.push(Entry { frame, outcome });
+            entries.push(Entry { frame: id, outcome });
             if stop.is_some() {
                 break;
             }

@@ -27,7 +27,7 @@ fn denoise_in_pool(args: &DenoiseArgs, ctx: &RunContext, verbosity: Verbosity) -
         ));
     }
     if let Some(batch) = Batch::plan(args)? {
-        let meter = Meter::new(verbosity, batch.len(), args.progress_every);
+        let meter = Meter::new(verbosity, batch.frame_count(), args.progress_every);
         meter.say_at(Verbosity::Verbose, &setup(&pipeline, ctx));
         return batch.run(args, &pipeline, ctx, &meter);
     }

@@ -224,11 +224,10 @@ impl Meter {
         };
         let bar = (shown == Shown::Bar).then(|| {
             let bar = ProgressBar::new(1000);
-            let style = ProgressStyle::with_template(
-                "{prefix} [{bar:30}] {percent:>3}% {elapsed_precise} {wide_msg}",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> ");
+            let style =
+                ProgressStyle::with_template("{prefix} [{bar:24}] {percent:>3}% {wide_msg}")
+                    .unwrap_or_else(|_| ProgressStyle::default_bar())
+                    .progress_chars("=> ");
             bar.set_style(style);
             bar.set_prefix("gsid");
             bar

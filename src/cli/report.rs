@@ -118,6 +118,13 @@ pub(super) enum FrameId {
     Name(String),
 }
 
+impl FrameId {
+    /// A pattern's frame by its number, else a render set by its name.
+    pub fn of(number: Option<u64>, label: &str) -> Self {
+        number.map_or_else(|| FrameId::Name(label.to_string()), FrameId::Number)
+    }
+}
+
 impl std::fmt::Display for FrameId {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
