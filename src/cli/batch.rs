@@ -10,8 +10,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use super::args::DenoiseArgs;
-use super::denoise::end_of;
-use super::frame::{denoise_or_skip, resolved, Loader};
+use super::frame::{denoise_or_skip, end_of, resolved, Loader};
 use super::meter::{Meter, Verbosity};
 use super::report::{Entry, FrameId, Outcome, PipelineJson, SequenceJson};
 use super::stdout::print_json;

@@ -3,9 +3,9 @@
 
 use super::args::DenoiseArgs;
 use super::batch::Batch;
-use super::frame::denoise_or_skip;
+use super::frame::{denoise_or_skip, end_of};
 use super::meter::{Meter, Verbosity};
-use super::report::{Outcome, PipelineJson, SingleJson};
+use super::report::{PipelineJson, SingleJson};
 use super::stdout::print_json;
 use crate::error::{Error, Result};
 use crate::io;
@@ -48,15 +48,6 @@ fn denoise_in_pool(args: &DenoiseArgs, ctx: &RunContext, verbosity: Verbosity) -
         })?;
     }
     Ok(())
-}
-
-/// How a frame ended, as its last progress line says.
-pub(super) fn end_of(outcome: &Result<Outcome>) -> &'static str {
-    match outcome {
-        Ok(Outcome::Done(_)) => "done",
-        Ok(Outcome::Skipped { .. }) => "skipped",
-        Ok(Outcome::Failed { .. }) | Err(_) => "failed",
-    }
 }
 
 /// The run's setup, said once with `-v`: the version, the pipeline and its stages, seed and threads.

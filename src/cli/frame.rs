@@ -81,6 +81,15 @@ pub(super) fn denoise_or_skip(
     Ok(Outcome::Done(Box::new(report)))
 }
 
+/// How a frame ended, as its last progress line says.
+pub(super) fn end_of(outcome: &Result<Outcome>) -> &'static str {
+    match outcome {
+        Ok(Outcome::Done(_)) => "done",
+        Ok(Outcome::Skipped { .. }) => "skipped",
+        Ok(Outcome::Failed { .. }) | Err(_) => "failed",
+    }
+}
+
 /// Denoises the one render set `args` names, read by `load` when given (a temporal run's merged
 /// frame). `say` gets the input's notes before the work starts.
 fn denoise_frame(
