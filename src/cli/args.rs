@@ -19,9 +19,13 @@ use crate::run::RunContext;
     after_help = examples::TOP
 )]
 pub struct Cli {
-    /// Silence the progress bar and notes on stderr.
+    /// Errors only on stderr: no progress, notes or summaries.
     #[arg(long, short, global = true)]
     pub quiet: bool,
+    /// Say more on stderr (denoise): `-v` the run's setup (version, pipeline, seed, threads) and
+    /// each frame's stage times; `-vv` also every progress step (debug).
+    #[arg(long, short, global = true, action = clap::ArgAction::Count, conflicts_with = "quiet")]
+    pub verbose: u8,
     #[command(subcommand)]
     pub command: Command,
 }
@@ -183,9 +187,13 @@ pub struct DenoiseArgs {
     /// outputs are written as computed, so it is an error when no output is a preview.
     #[arg(long, value_name = "EV", allow_negative_numbers = true)]
     pub exposure: Option<f32>,
-    /// Print each stage's time (and each pyramid level's) after the run.
+    /// Print each stage's time (and each pyramid level's) after the run (also with -v).
     #[arg(long)]
     pub timings: bool,
+    /// Seconds between progress lines when stderr is not a terminal (a render farm's log); 0: a
+    /// line at every step. A line is printed at each frame's end whatever this is.
+    #[arg(long, value_name = "SECONDS", default_value_t = super::meter::DEFAULT_EVERY, value_parser = seconds)]
+    pub progress_every: f64,
     /// Write the denoised colour and its alpha as half floats (the other layers of --keep-layers
     /// keep their type).
     #[arg(long)]
@@ -205,6 +213,15 @@ pub struct DenoiseArgs {
     /// frame is merged from fewer neighbours, with a note).
     #[arg(long)]
     pub temporal_strict: bool,
+}
+
+fn seconds(text: &str) -> std::result::Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(s) if (0.0..=86_400.0).contains(&s) => Ok(s),
+        _ => Err(format!(
+            "`{text}` is not a number of seconds from 0 to 86400"
+        )),
+    }
 }
 
 fn compression(name: &str) -> std::result::Result<io::Compression, String> {

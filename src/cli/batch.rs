@@ -10,14 +10,14 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use super::args::DenoiseArgs;
-use super::frame::{denoise_or_skip, resolved, Loader};
+use super::frame::{denoise_or_skip, end_of, resolved, Loader};
+use super::meter::{Meter, Verbosity};
 pub use super::pattern::{parse_frames, Pattern};
-use super::report::{Entry, Outcome, PipelineJson, SequenceJson};
+use super::report::{Entry, FrameId, Outcome, PipelineJson, SequenceJson};
 use super::stdout::print_json;
 use crate::error::{Error, Result};
 use crate::io;
 use crate::pipeline::Pipeline;
-use crate::progress::Progress;
 use crate::run::RunContext;
 use crate::temporal::Shot;
 
@@ -272,15 +272,25 @@ impl Batch {
         Ok(())
     }
 
-    /// Denoises every frame in order, one progress bar over all of them.
-    pub fn run(self, args: &DenoiseArgs, pipeline: &Pipeline, ctx: &RunContext) -> Result<()> {
+    /// How many frames the batch denoises.
+    pub fn frame_count(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// Denoises every frame in order, `meter` showing progress over all of them.
+    pub fn run(
+        self,
+        args: &DenoiseArgs,
+        pipeline: &Pipeline,
+        ctx: &RunContext,
+        meter: &Meter,
+    ) -> Result<()> {
         if let Some(dir) = &self.out_dir {
             std::fs::create_dir_all(dir).map_err(|e| Error::output(dir, e))?;
         }
         let total = self.frames.len();
-        let bar = Progress::new(ctx.progress, "frames", total as u64);
         let mut entries = Vec::with_capacity(total);
-        let mut failed: Vec<(String, i32)> = Vec::new();
+        let mut failed: Vec<(FrameId, i32)> = Vec::new();
         let mut stop = None;
         let radius = args.temporal.or(pipeline.temporal).unwrap_or(0);
         let mut shot = match &self.paths {
@@ -298,13 +308,15 @@ impl Batch {
         // missing buffer, a clamp): notes of one kind differ from frame to frame only in numbers.
         let said = std::cell::RefCell::new(std::collections::HashSet::new());
         for frame in self.frames {
+            let id = FrameId::of(frame.number, &frame.label);
             let label = frame.label;
             let say = |line: &str| {
                 let new = once_a_run(line).is_none_or(|key| said.borrow_mut().insert(key));
-                if ctx.progress && new {
-                    bar.println(&format!("gsid: frame {label}: {line}"));
+                if new {
+                    meter.say_at(Verbosity::Normal, &format!("gsid: frame {label}: {line}"));
                 }
             };
+            meter.start_frame(Some(&label));
             let temporal = shot.is_some() && frame.number.is_some();
             let mut merged = |_: &DenoiseArgs| -> Result<io::LoadedSet> {
                 let (shot, paths, range) = shot.as_mut().expect("a temporal run");
@@ -312,42 +324,40 @@ impl Batch {
                 shot.frame(n, &|k| paths.load(k, *range))
             };
             let load: Option<Loader> = if temporal { Some(&mut merged) } else { None };
-            let outcome = match denoise_or_skip(&frame.args, pipeline, ctx, false, &say, load) {
+            let result = denoise_or_skip(&frame.args, pipeline, ctx, meter, &say, load);
+            meter.end_frame(end_of(&result));
+            let outcome = match result {
                 Ok(outcome) => outcome,
                 Err(e) => {
                     let e = Error::Frame {
                         frame: label.clone(),
                         source: Box::new(e),
                     };
-                    failed.push((label.clone(), e.exit_code()));
+                    failed.push((id.clone(), e.exit_code()));
                     let outcome = Outcome::Failed {
                         error: e.to_string(),
                         exit_code: e.exit_code(),
                     };
                     if args.keep_going {
-                        bar.println(&format!("gsid: error: {e}"));
+                        meter.error(&format!("gsid: error: {e}"));
                     } else {
                         stop = Some(e);
                     }
                     outcome
                 }
             };
-            entries.push(Entry {
-                frame: label,
-                outcome,
-            });
-            bar.inc(1);
+            entries.push(Entry { frame: id, outcome });
             if stop.is_some() {
                 break;
             }
         }
-        bar.finish();
+        meter.finish();
         let skipped = entries
             .iter()
             .filter(|e| matches!(e.outcome, Outcome::Skipped { .. }))
             .count();
         let done = entries.len() - skipped - failed.len();
-        if ctx.progress {
+        if meter.talks() {
             let not_started = total - entries.len();
             let rest = if not_started > 0 {
                 format!(", {not_started} not started")
@@ -361,12 +371,13 @@ impl Batch {
         }
         if args.json {
             let json = SequenceJson {
+                version: env!("CARGO_PKG_VERSION"),
                 pipeline: PipelineJson::of(pipeline),
                 seed: ctx.seed,
                 frames: entries,
                 done,
                 skipped,
-                failed: failed.iter().map(|(l, _)| l.clone()).collect(),
+                failed: failed.iter().map(|(id, _)| id.clone()).collect(),
             };
             print_json(&json)?;
         }
@@ -382,7 +393,7 @@ impl Batch {
             } else {
                 2
             },
-            failed: failed.into_iter().map(|(l, _)| l).collect(),
+            failed: failed.into_iter().map(|(id, _)| id.to_string()).collect(),
             total,
         })
     }

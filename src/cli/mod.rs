@@ -1,8 +1,9 @@
 //! The `gsid` binary's code. Thin: parse the flags (`args`), call the library, print one line per
 //! error. `denoise` runs the command over one render set (`frame`) or many (`batch`, which hands
-//! each to `frame`); `report` says what a frame did, as text or JSON; `studies` holds ablate,
-//! sweep, eval and the pipeline list; `stdout` prints without panicking. Uses run one way:
-//! denoise → batch → frame → report, and each of them → args, stdout.
+//! each to `frame`); `report` says what a frame did, as text or JSON; `meter` shows progress and
+//! filters what is said by verbosity; `studies` holds ablate, sweep, eval and the pipeline list;
+//! `stdout` prints without panicking. Uses run one way: denoise → batch → frame → report, and each
+//! of them → args, meter, stdout.
 
 mod args;
 pub mod batch;
@@ -11,6 +12,7 @@ mod examples;
 mod frame;
 mod hints;
 mod pattern;
+pub mod meter;
 mod report;
 mod stdout;
 mod studies;
@@ -99,7 +101,9 @@ fn keep_freed_memory() {
 
 fn run(cli: Cli) -> crate::error::Result<()> {
     match cli.command {
-        Command::Denoise(args) => denoise::denoise(&args, cli.quiet),
+        Command::Denoise(args) => {
+            denoise::denoise(&args, meter::Verbosity::of(cli.quiet, cli.verbose))
+        }
         Command::Render(args) => crate::render::run(&args, cli.quiet),
         Command::Eval(args) => studies::eval(&args, cli.quiet),
         Command::Ablate(args) => studies::ablate(&args, cli.quiet),

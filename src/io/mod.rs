@@ -33,6 +33,7 @@ pub use load::{
 };
 pub use loaded_set::{find_reference, LoadedSet};
 pub use output::{
-    remove_pending_outputs, write_exr, NewFolder, PendingFolder, PendingOutput, STDOUT,
+    remove_pending_outputs, remove_stale_beside, write_exr, NewFolder, PendingFolder,
+    PendingOutput, STDOUT,
 };
 pub use read::{is_ldr, read_color, read_image, read_text, srgb_to_linear};

@@ -193,6 +193,15 @@ impl Drop for MadeFolders {
     }
 }
 
+/// Removes what dead runs left in the folder `path` will be in (`stale`), once a run and folder:
+/// also when no output is written there (every frame of a requeued chunk skipped).
+pub fn remove_stale_beside(path: &Path) {
+    let dir = parent_dir(path);
+    if path.as_os_str() != STDOUT && dir.is_dir() {
+        stale::sweep(&dir);
+    }
+}
+
 /// A temporary file or folder (`make`) named `.gsid-HOST-PID-*.tmp` in the folder `path` will be
 /// in, made (with the folders above it) if missing; what dead runs left there is removed first
 /// (`stale`).
