@@ -27,4 +27,13 @@ printf 'PF\n2 1\n-1.0\n\000\000\200\077\000\000\000\100\000\000\100\100\001\000\
 printf 'Pf\n1 2\n1.0\n\077\200\000\000\000\000\000\001' > "$pfm/grey-be"
 printf 'Pf \t3\r\n1\n-2.5 \000\000\200\077\000\000\200\277\377\377\177\177' > "$pfm/grey-scaled"
 printf 'PF\n1 1\n4\n\100\000\000\000\000\000\000\000\177\200\000\000' > "$pfm/rgb-be"
+# Multilayer files for multilayer_passes, cropped with Python's OpenEXR (the venv of
+# scripts/requirements-compare.txt, or any python3 that has it).
+python=${PYTHON:-python3}
+if "$python" -c "import OpenEXR, numpy" 2>/dev/null; then
+    "$python" "$here/seed_multilayer.py" "$here/corpus/multilayer_passes"
+else
+    echo "multilayer_passes: no seeds (set PYTHON to a python3 with OpenEXR and numpy)" >&2
+    mkdir -p "$here/corpus/multilayer_passes"
+fi
 echo "seeded: $(ls "$here/corpus/exr_reader" | wc -l) EXR, $(ls "$here/corpus/pipeline_toml" | wc -l) pipeline, $(ls "$here/corpus/scene_toml" | wc -l) scene, $(ls "$pfm" | wc -l) PFM inputs"

@@ -11,7 +11,7 @@ For every setting of GRID (keys `gsid denoise --set` takes, applied to `balanced
     all alike. Settings are ranked by CPU seconds (user + system of the process), which other
     load on a shared machine disturbs less than wall time; both are printed.
 `quality` is scored the same way. The choice: the fastest setting whose SSIM is within LOSS of
-`quality`'s at every spp, on the five fixtures' mean and on `cycles-studio` (README "Presets": the
+`quality`'s at every spp, on the five fixtures' mean and on `cycles-studio` (docs/RESULTS.md "Presets": the
 rule was the five fixtures at 4 spp only before the stages took their strength from the noise; at
 1 spp and on the Blender render the cheaper settings lose most).
 

@@ -12,7 +12,7 @@ any single fixture's front is printed too.
   balanced = the fastest candidate whose mean SSIM is within BALANCED_LOSS of quality's;
   fast     = the fastest candidate whose mean SSIM is within FAST_LOSS of quality's.
 
-Standard library only. Run from the repository root after the sweeps (README "Presets"):
+Standard library only. Run from the repository root after the sweeps (docs/RESULTS.md "Presets"):
 
     python3 scripts/choose_presets.py sweeps/*/sweep.csv
 """

@@ -25,8 +25,15 @@ pub struct SanitizeReport {
     pub normal_unknown: usize,
     /// Depth values that were infinite, NaN or negative, set to the background depth.
     pub depth_background: usize,
-    /// Albedo, material or shadow samples that were non-finite or outside [0, 1], clamped.
+    /// Albedo, material or shadow samples that were non-finite or outside [0, 1], clamped (the
+    /// three below together).
     pub feature_clamped: usize,
+    /// Of those, the albedo's.
+    pub albedo_clamped: usize,
+    /// Of those, the material weights'.
+    pub material_clamped: usize,
+    /// Of those, the shadow's.
+    pub shadow_clamped: usize,
     /// Variance samples that were non-finite or negative, set to 0 (the two half-sample colours
     /// are counted with colour).
     pub variance_invalid: usize,
@@ -55,7 +62,9 @@ impl SanitizeReport {
                 self.depth_background,
                 "infinite/invalid depths → background",
             ),
-            (self.feature_clamped, "feature samples clamped to [0, 1]"),
+            (self.albedo_clamped, "albedo samples clamped to [0, 1]"),
+            (self.material_clamped, "material samples clamped to [0, 1]"),
+            (self.shadow_clamped, "shadow samples clamped to [0, 1]"),
             (self.variance_invalid, "invalid variance samples → 0"),
         ]
         .iter()
@@ -170,6 +179,11 @@ pub fn sanitize(color: Option<&mut Image>, features: &mut FeatureSet) -> Sanitiz
                 [changed]
             });
             report.feature_clamped += clamped;
+            *match feature {
+                Feature::Albedo => &mut report.albedo_clamped,
+                Feature::Material => &mut report.material_clamped,
+                _ => &mut report.shadow_clamped,
+            } += clamped;
         }
     }
     if let Some(img) = features.get_mut(Feature::Normal) {

@@ -483,33 +483,73 @@ impl PipelineSpec {
         self.set(key.trim(), parse_value(value.trim()))
     }
 
-    /// Sets `STAGE_ID.key[.sub]` to `value` in the stage that id names.
+    /// Sets `STAGE_ID.key[.sub]` to `value` in the stage that id names: a top-level stage, else
+    /// the one stage of that id anywhere in the tree (`gsid.walks` reaches `pyramid.gsid.walks`
+    /// when the pyramid's `gsid` is the only one). Two or more nested stages of that id are an
+    /// error listing their full paths.
     pub fn set(&mut self, key: &str, value: toml::Value) -> Result<()> {
+        let key = self.full_key(key)?;
         let mut path = key.split('.');
         let stage_id = path.next().unwrap_or_default();
         let rest: Vec<&str> = path.collect();
-        if rest.is_empty() || rest.iter().any(|p| p.is_empty()) {
+        let stage = self
+            .stages
+            .iter_mut()
+            .find(|s| s.id == stage_id)
+            .expect("full_key names a top-level stage");
+        stage.set(&rest, value)
+    }
+
+    /// `key` written from the top of the tree: unchanged when its first part is a top-level
+    /// stage's id, else with the path of the one nested stage of that id put in front.
+    pub fn full_key(&self, key: &str) -> Result<String> {
+        let (stage_id, rest) = key.split_once('.').unwrap_or((key, ""));
+        if rest.is_empty() || rest.split('.').any(str::is_empty) {
             return Err(Error::config(
                 key,
                 "--set key must be STAGE_ID.PARAM, e.g. gsid.walks",
             ));
         }
-        let ids: Vec<String> = self.stages.iter().map(|s| s.id.clone()).collect();
-        let stage = self
-            .stages
-            .iter_mut()
-            .find(|s| s.id == stage_id)
-            .ok_or_else(|| {
-                Error::config(
-                    key,
-                    format!(
-                        "no stage `{stage_id}` in pipeline {} (stages: {})",
-                        self.name,
-                        ids.join(", ")
-                    ),
-                )
-            })?;
-        stage.set(&rest, value)
+        if self.stages.iter().any(|s| s.id == stage_id) {
+            return Ok(key.to_string());
+        }
+        let mut all = Vec::new();
+        stage_paths(&self.stages, "", &mut all);
+        let found: Vec<&String> = all
+            .iter()
+            .filter(|p| p.rsplit('.').next() == Some(stage_id))
+            .collect();
+        match found.as_slice() {
+            [one] => Ok(format!("{one}.{rest}")),
+            [] => Err(Error::config(
+                key,
+                format!(
+                    "no stage `{stage_id}` in pipeline {} (stages: {})",
+                    self.name,
+                    all.join(", ")
+                ),
+            )),
+            many => Err(Error::config(
+                key,
+                format!(
+                    "`{stage_id}` is ambiguous in pipeline {}: give its full path ({})",
+                    self.name,
+                    many.iter()
+                        .map(|p| format!("{p}.{rest}"))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            )),
+        }
+    }
+}
+
+/// Every stage's path from the top (`pyramid`, `pyramid.gsid`), in file order.
+fn stage_paths(stages: &[StageSpec], prefix: &str, out: &mut Vec<String>) {
+    for s in stages {
+        let path = format!("{prefix}{}", s.id);
+        out.push(path.clone());
+        stage_paths(&s.children, &format!("{path}."), out);
     }
 }
 
@@ -610,6 +650,36 @@ mod tests {
         assert!(err.contains("x.toml: pyramid.stages[0].kind"), "{err}");
         let err = parse_err("name = \"x\"\n[[stage]]\nkind = \"pyramid\"\nlevel1 = 2\n");
         assert!(err.contains("x.toml: pyramid.level1"), "{err}");
+    }
+
+    #[test]
+    fn a_nested_stage_is_found_by_its_id_unless_two_share_it() {
+        let mut spec = PipelineSpec::builtin("full").unwrap();
+        spec.apply_set("gsid.walks=40").unwrap();
+        spec.apply_set("gsid.weights.depth=0").unwrap();
+        spec.apply_set("level_noise.reuse=\"noise\"").unwrap();
+        let p = spec.stages.iter().find(|s| s.id == "pyramid").unwrap();
+        assert_eq!(
+            p.overrides.every_level["gsid"]["walks"].as_integer(),
+            Some(40)
+        );
+        assert_eq!(
+            p.overrides.every_level["gsid"]["weights"]["depth"].as_integer(),
+            Some(0)
+        );
+        spec.build().unwrap();
+        // A top-level id is a full path: `noise` is the top-level stage, not `pyramid.level_noise`.
+        assert_eq!(spec.full_key("noise.x").unwrap(), "noise.x");
+        let err = spec.apply_set("gsdi.walks=4").err().unwrap().to_string();
+        assert!(err.contains("pyramid.gsid"), "{err}");
+        let two = "name = \"two\"\n[[stage]]\nkind = \"pyramid\"\nid = \"a\"\n[[stage.stages]]\nkind = \"gsid\"\n[[stage]]\nkind = \"pyramid\"\nid = \"b\"\n[[stage.stages]]\nkind = \"gsid\"\n";
+        let mut spec = PipelineSpec::parse(two, "two.toml").unwrap();
+        let err = spec.apply_set("gsid.walks=4").err().unwrap().to_string();
+        assert!(
+            err.contains("ambiguous") && err.contains("a.gsid.walks, b.gsid.walks"),
+            "{err}"
+        );
+        spec.apply_set("b.gsid.walks=4").unwrap();
     }
 
     #[test]

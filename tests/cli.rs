@@ -132,8 +132,11 @@ fn set_overrides_reach_the_stage() {
         "gsid.walks=0",
     ]);
     assert_bad_input(&bad, "gsid.walks");
-    let bad = gsid(&["denoise", set4, "-o", o, "--set", "gsid.walks=3"]);
-    assert_bad_input(&bad, "no stage `gsid`");
+    // A stage is found by its id wherever it sits: on `full`, `gsid` is the pyramid's.
+    let short = gsid(&["denoise", set4, "-o", o, "--set", "gsid.walks=1"]);
+    assert_eq!(walk_steps(&short), walk_steps(&nested));
+    let bad = gsid(&["denoise", set4, "-o", o, "--set", "gsdi.walks=3"]);
+    assert_bad_input(&bad, "no stage `gsdi`");
 }
 
 #[test]
@@ -223,10 +226,13 @@ fn misspelled_pipeline_key_is_named() {
 #[test]
 fn unwritable_output_path_is_named_and_nothing_is_left() {
     let tmp = tempfile::tempdir().unwrap();
-    let out = tmp.path().join("no-such-folder").join("out.exr");
+    // A missing folder is made (tests/output_files.rs); a file where the folder should be is not.
+    std::fs::write(tmp.path().join("a-file"), b"").unwrap();
+    let out = tmp.path().join("a-file").join("out.exr");
     let run = gsid(&["denoise", FIXTURE_SPP1, "-o", out.to_str().unwrap()]);
-    assert_bad_input(&run, "no-such-folder");
+    assert_bad_input(&run, "a-file");
     assert!(!out.exists());
+    std::fs::remove_file(tmp.path().join("a-file")).unwrap();
     let run = gsid(&["denoise", FIXTURE_SPP1, "-o", tmp.path().to_str().unwrap()]);
     assert_bad_input(&run, "is a directory");
     assert!(files_in(tmp.path()).is_empty());

@@ -449,3 +449,46 @@ fn a_multilayer_variance_pass_is_loaded() {
     assert_eq!(v.pixel(5), &[0.25, 0.5, 0.75]);
     assert!(loaded.notes[0].contains("variance ← ViewLayer.Denoising Variance"));
 }
+
+/// A header is checked against the file's bytes by its compression method before anything is
+/// decoded: an uncompressed 256² file whose header says 1024² cannot hold its samples and is
+/// refused naming the file; a flat 1024² DWAB file (1,330 bytes from OpenEXR 3.5: the DWA codecs
+/// store a flat channel in a few bytes whatever its size) is read, also as a multilayer file.
+#[test]
+fn declared_sizes_are_checked_against_what_the_compression_can_hold() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("stored.exr");
+    crate_written(
+        &path,
+        &Image::filled(256, 256, 3, 0.5),
+        Compression::Uncompressed,
+    );
+    let mut bytes = std::fs::read(&path).unwrap();
+    let value = |bytes: &[u8], tag: &[u8]| {
+        bytes.windows(tag.len()).position(|w| w == tag).unwrap() + tag.len() + 4
+    };
+    for tag in [&b"dataWindow\0box2i\0"[..], &b"displayWindow\0box2i\0"[..]] {
+        let at = value(&bytes, tag);
+        for field in [8, 12] {
+            bytes[at + field..at + field + 4].copy_from_slice(&1023i32.to_le_bytes());
+        }
+    }
+    // One scan line a chunk when stored: the chunk count to match the new size.
+    if let Some(at) = bytes.windows(15).position(|w| w == b"chunkCount\0int\0") {
+        let at = at + 15 + 4;
+        bytes[at..at + 4].copy_from_slice(&1024i32.to_le_bytes());
+    }
+    std::fs::write(&path, bytes).unwrap();
+    let err = io::read_image(&path, 3).unwrap_err().to_string();
+    assert!(
+        err.contains("stored.exr") && err.contains("1024x1024") && err.contains("file can hold"),
+        "{err}"
+    );
+
+    let flat = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/flat-1024-dwab.exr");
+    let img = io::read_image(&flat, 3).unwrap();
+    assert_eq!(img.dims(), (1024, 1024));
+    assert!(img.data().iter().all(|&v| v == 0.0));
+    let set = io::load_input(&flat, &[]).unwrap();
+    assert_eq!(set.set.color.dims(), (1024, 1024));
+}

@@ -89,8 +89,10 @@ fn cycles_folder(dir: &Path, depth: bool) {
     }
 }
 
+/// The output's bytes. One compression for every run: by default an output follows its colour
+/// file's, and these runs read the same pixels from files compressed differently.
 fn denoise(args: &[&str], out: &Path) -> Vec<u8> {
-    let mut all = vec!["denoise"];
+    let mut all = vec!["denoise", "--compression", "zip"];
     all.extend_from_slice(args);
     all.extend_from_slice(&["-o", out.to_str().unwrap()]);
     let run = gsid(&all);
@@ -100,7 +102,7 @@ fn denoise(args: &[&str], out: &Path) -> Vec<u8> {
 
 /// The `gsid: FILE: color ← …` line of a run.
 fn mapping_line(args: &[&str], out: &Path) -> String {
-    let mut all = vec!["denoise"];
+    let mut all = vec!["denoise", "--compression", "zip"];
     all.extend_from_slice(args);
     all.extend_from_slice(&["-o", out.to_str().unwrap()]);
     let run = gsid(&all);

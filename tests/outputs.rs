@@ -214,7 +214,14 @@ fn signalled(signal: i32) -> (tempfile::TempDir, PathBuf, std::process::Output) 
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    std::thread::sleep(Duration::from_secs(1));
+    // Signalled once the output is reserved (its temporary file exists), however loaded the machine.
+    for _ in 0..1200 {
+        let reserved = files_in(&out_dir).iter().any(|f| f.starts_with(".gsid-"));
+        if reserved {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
     // SAFETY: kill sends a signal to the child we started; it has no memory-safety preconditions.
     assert_eq!(unsafe { libc::kill(child.id() as i32, signal) }, 0);
     let done = child.wait_with_output().unwrap();
@@ -334,15 +341,29 @@ fn sigkill_leaves_a_temp_file_that_the_next_run_removes() {
         left[0].starts_with(".gsid-") && left[0].ends_with(".tmp"),
         "{left:?}"
     );
-    // Files that must stay: this (live) process's, another host's, one gsid did not name.
+    // Files that must stay: this (live) process's, another host's, ones gsid did not name, and
+    // an older gsid's that is open (a live run's) or was modified after the run began.
     let keep = [
         temp_name(std::process::id(), "live00"),
         ".gsid-another_host-1-abc123.tmp".to_string(),
-        ".gsid-abc123.tmp".to_string(),
+        ".gsid-abc12.tmp".to_string(),
+        "notes.tmp".to_string(),
+        ".gsid-Open00.tmp".to_string(),
+        ".gsid-Later0.tmp".to_string(),
     ];
     for name in &keep {
         std::fs::write(out_dir.join(name), "x").unwrap();
     }
+    let _held = std::fs::File::open(out_dir.join(".gsid-Open00.tmp")).unwrap();
+    let later = std::time::SystemTime::now() + Duration::from_secs(3600);
+    let file = std::fs::File::options()
+        .write(true)
+        .open(out_dir.join(".gsid-Later0.tmp"));
+    file.unwrap().set_modified(later).unwrap();
+    // An older gsid's, closed and older than the run: its file and its set moved aside go.
+    std::fs::write(out_dir.join(".gsid-abc123.tmp"), "").unwrap();
+    std::fs::create_dir(out_dir.join(".gsid-old-Q1w2E3")).unwrap();
+    std::fs::write(out_dir.join(".gsid-old-Q1w2E3/color.exr"), "x").unwrap();
     let small = tmp.path().join("small");
     write_set(&small, &synthetic_set(8, 6));
     let run = gsid(&[
@@ -359,4 +380,74 @@ fn sigkill_leaves_a_temp_file_that_the_next_run_removes() {
     want.push("small.exr".to_string());
     want.sort();
     assert_eq!(files_in(&out_dir), want);
+}
+
+/// A process id that no longer exists: a child that has exited and been reaped.
+fn dead_pid() -> u32 {
+    let mut child = Command::new("true").spawn().unwrap();
+    let pid = child.id();
+    child.wait().unwrap();
+    pid
+}
+
+/// What a killed run leaves is removed by a later sequence and by a later folder-of-sets run too,
+/// even when every frame is skipped (a requeued farm chunk whose frames all exist).
+#[test]
+fn sequences_and_folders_of_sets_remove_what_killed_runs_left() {
+    let tmp = tempfile::tempdir().unwrap();
+    let shot = tmp.path().join("shot");
+    std::fs::create_dir_all(&shot).unwrap();
+    for n in 1..=2 {
+        let set = synthetic_set(8, 6);
+        gsid::io::write_exr(
+            &shot.join(format!("b.{n:04}.exr")),
+            set.get("color").unwrap(),
+        )
+        .unwrap();
+    }
+    let out = tmp.path().join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    let sequence = |extra: &[&str]| {
+        let input = shot.join("b.####.exr");
+        let output = out.join("d.####.exr");
+        let mut args = vec![
+            "denoise",
+            input.to_str().unwrap(),
+            "-o",
+            output.to_str().unwrap(),
+        ];
+        args.extend_from_slice(&["-p", "fast", "-q"]);
+        args.extend_from_slice(extra);
+        let run = gsid(&args);
+        assert!(run.status.success(), "{}", stderr(&run));
+    };
+    sequence(&[]);
+    let leftovers = [
+        temp_name(dead_pid(), "abc123"),
+        ".gsid-Zz9Yy8.tmp".to_string(),
+    ];
+    for name in &leftovers {
+        std::fs::write(out.join(name), "").unwrap();
+    }
+    sequence(&["--skip-existing"]);
+    assert_eq!(files_in(&out), ["d.0001.exr", "d.0002.exr"]);
+
+    let sets = tmp.path().join("sets");
+    write_set(&sets.join("a"), &synthetic_set(8, 6));
+    let denoised = tmp.path().join("denoised");
+    std::fs::create_dir_all(&denoised).unwrap();
+    for name in &leftovers {
+        std::fs::write(denoised.join(name), "").unwrap();
+    }
+    let run = gsid(&[
+        "denoise",
+        sets.to_str().unwrap(),
+        "-o",
+        denoised.to_str().unwrap(),
+        "-p",
+        "fast",
+        "-q",
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    assert_eq!(files_in(&denoised), ["a.exr"]);
 }

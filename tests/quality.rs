@@ -95,7 +95,7 @@ fn full_beats_single_scale_gsid_at_very_low_spp_and_holds_at_64() {
     }
 }
 
-/// The presets keep the order they were chosen for (README "Presets"): on the mean over the fixtures at
+/// The presets keep the order they were chosen for (docs/RESULTS.md "Presets"): on the mean over the fixtures at
 /// 4 spp more time buys more SSIM; on every fixture `balanced` (2 walks, the prefilter) beats `fast` (1 walk) and every
 /// preset is far better than the input. `quality` against `balanced` is only a mean property: on
 /// `caustics` the single-scale `balanced` scores 0.002 above it.

@@ -351,3 +351,75 @@ fn a_run_larger_than_the_memory_limit_is_refused_before_decoding() {
     assert!(rss < 64 * 1024, "peaked at {rss} KiB");
     assert!(!out.exists());
 }
+
+/// A scene of `side`² pixels with one image texture at `texture` (relative to the scene), written
+/// to `dir/scene.toml`.
+fn scene_with_texture(dir: &Path, side: u32, texture: &str) -> std::path::PathBuf {
+    let cornell = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/scenes/cornell.toml"),
+    )
+    .unwrap();
+    let sized = cornell
+        .replace("width = 128", &format!("width = {side}"))
+        .replace("height = 128", &format!("height = {side}"));
+    assert_ne!(sized, cornell, "the Cornell scene's size moved");
+    let path = dir.join("scene.toml");
+    let text = format!("{sized}\n[textures.picture]\ntype = \"image\"\npath = \"{texture}\"\n");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// `gsid render` estimates its memory from the scene's size and its image textures' headers
+/// before decoding anything: a texture declaring 16384² pixels in a small file (a ZIP of zeros
+/// is one) is refused, naming the estimate, and nothing is written; a render that is accepted
+/// stays within its estimate.
+#[test]
+fn a_render_larger_than_the_memory_limit_is_refused_before_decoding() {
+    let dir = tempfile::tempdir().unwrap();
+    declaring(dir.path(), 16384, 16384);
+    let scene = scene_with_texture(dir.path(), 8, "color.exr");
+    let out = dir.path().join("r");
+    let render = |scene: &Path, limit: &str| {
+        run(&[
+            "render",
+            scene.to_str().unwrap(),
+            "--spp",
+            "1",
+            "--reference-spp",
+            "0",
+            "--max-memory",
+            limit,
+            "-q",
+            "-o",
+            out.to_str().unwrap(),
+        ])
+    };
+    let (code, err, rss) = render(&scene, "4000");
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("--max-memory") && err.contains("MiB") && err.contains("texture"),
+        "{err}"
+    );
+    assert!(rss < 64 * 1024, "peaked at {rss} KiB");
+    assert!(!out.exists());
+
+    // A real 1024² texture and a 256² render: accepted, and the estimate is an upper bound.
+    let real = tempfile::tempdir().unwrap();
+    gsid::io::write_exr(
+        &real.path().join("t.exr"),
+        &gsid::Image::filled(1024, 1024, 3, 0.25),
+    )
+    .unwrap();
+    let scene = scene_with_texture(real.path(), 256, "t.exr");
+    let spec =
+        gsid::render::scene_file::SceneSpec::parse(&std::fs::read_to_string(&scene).unwrap())
+            .unwrap();
+    let estimate = spec.peak_bytes(real.path());
+    let (code, err, rss) = render(&scene, "100000");
+    assert_eq!(code, Some(0), "{err}");
+    assert!(
+        (rss as u64) * 1024 <= estimate,
+        "peaked at {rss} KiB, above the estimate of {} KiB",
+        estimate / 1024
+    );
+}

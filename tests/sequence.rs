@@ -104,7 +104,7 @@ fn skip_existing_rerun_reads_and_writes_nothing() {
     let rerun = sequence(tmp.path(), &["--frames", "1-3", "--skip-existing"]);
     let err = stderr(&rerun);
     assert!(rerun.status.success(), "{err}");
-    assert_eq!(err.matches("skipped, ").count(), 3, "{err}");
+    assert_eq!(err.matches(": skipped, ").count(), 3, "{err}");
     assert!(err.contains("3 skipped"), "{err}");
     assert!(
         snapshot(&out) == before,
@@ -168,9 +168,15 @@ fn every_frame_equals_its_single_file_run_and_folders_of_sets_too() {
         "-p",
         "gsid",
         "-q",
+        "--json",
     ]);
     assert!(run.status.success(), "{}", stderr(&run));
     assert_eq!(files_in(&outdir), ["spp1.exr", "spp4.exr"]);
+    let json: serde_json::Value = serde_json::from_slice(&run.stdout).expect("stdout is JSON");
+    assert_eq!(
+        json["frames"][0]["frame"], "spp1",
+        "a render set's name stays a string"
+    );
     let alone = tmp.path().join("alone.exr");
     let one = gsid(&[
         "denoise",
@@ -249,6 +255,11 @@ fn json_is_one_object_on_stdout_for_a_frame_and_for_a_sequence() {
         assert!(json.get(key).is_some(), "no `{key}` in {json}");
     }
     assert_eq!(json["status"], "done");
+    assert_eq!(
+        json["version"],
+        env!("CARGO_PKG_VERSION"),
+        "the gsid that wrote it"
+    );
     assert_eq!(json["pipeline"]["name"], "gsid");
     assert_eq!(json["pipeline"]["stages"][0], "gsid");
     assert_eq!(json["output"], out.to_str().unwrap());
@@ -266,13 +277,15 @@ fn json_is_one_object_on_stdout_for_a_frame_and_for_a_sequence() {
         .map(|f| f["status"].as_str().unwrap())
         .collect();
     assert_eq!(status, ["done", "done", "failed"]);
-    assert_eq!(frames[0]["frame"], "1");
+    assert_eq!(json["version"], env!("CARGO_PKG_VERSION"));
+    // Frame numbers are numbers, in the frames and in the failed list alike.
+    assert_eq!(frames[0]["frame"], 1);
     assert_eq!(frames[1]["inputs"][1]["buffer"], "albedo");
     assert!(frames[2]["error"]
         .as_str()
         .unwrap()
         .contains("beauty.0003.exr"));
-    assert_eq!(json["failed"], serde_json::json!(["3"]));
+    assert_eq!(json["failed"], serde_json::json!([3]));
 }
 
 #[test]

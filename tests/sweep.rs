@@ -307,3 +307,22 @@ fn a_stopped_sweep_leaves_no_folder_it_made() {
         }
     }
 }
+
+#[test]
+fn a_nested_stage_is_varied_by_its_id_and_clashes_with_its_full_path() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let set = Path::new(env!("CARGO_MANIFEST_DIR")).join(SET);
+    let run = gsid(&[
+        "sweep",
+        set.to_str().unwrap(),
+        "--vary",
+        "gsid.walks=2,4",
+        "--set",
+        "pyramid.gsid.walks=8",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_bad_input(&run, "also fixed by --set");
+    assert!(!out.exists());
+}

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use clap::{Parser, Subcommand};
 
+use super::examples;
 use crate::error::{Error, Result};
 use crate::io;
 use crate::pipeline::{Pipeline, PipelineSpec, DEFAULT_PIPELINE};
@@ -14,12 +15,17 @@ use crate::run::RunContext;
 #[command(
     name = "gsid",
     version,
-    about = "Feature-guided stochastic denoising for path-traced renders"
+    about = "Feature-guided stochastic denoising for path-traced renders",
+    after_help = examples::TOP
 )]
 pub struct Cli {
-    /// Silence the progress bar and notes on stderr.
+    /// Errors only on stderr: no progress, notes or summaries.
     #[arg(long, short, global = true)]
     pub quiet: bool,
+    /// Say more on stderr (denoise): `-v` the run's setup (version, pipeline, seed, threads) and
+    /// each frame's stage times; `-vv` also every progress step (debug).
+    #[arg(long, short, global = true, action = clap::ArgAction::Count, conflicts_with = "quiet")]
+    pub verbose: u8,
     #[command(subcommand)]
     pub command: Command,
 }
@@ -30,16 +36,22 @@ pub struct Cli {
 pub enum Command {
     /// Denoise a render set folder (color.exr plus optional feature buffers), a multilayer EXR, a
     /// frame sequence (`beauty.####.exr`) or a folder of render-set folders.
+    #[command(after_help = examples::DENOISE)]
     Denoise(DenoiseArgs),
     /// Score an image against a reference: SSIM, PSNR, relMSE (ALGORITHM.md §5).
+    #[command(after_help = examples::EVAL)]
     Eval(EvalArgs),
     /// List the named pipelines.
+    #[command(after_help = examples::PIPELINES)]
     Pipelines,
     /// Render a scene file into a render set (fixture renderer).
+    #[command(after_help = examples::RENDER)]
     Render(crate::render::RenderArgs),
     /// Run a pipeline and variants of it (each stage removed, each feature weight zeroed, plain SID) and score them.
+    #[command(after_help = examples::ABLATE)]
     Ablate(AblateArgs),
     /// Run a pipeline over a grid of parameter values; time and score each setting, plot SSIM against seconds.
+    #[command(after_help = examples::SWEEP)]
     Sweep(SweepArgs),
 }
 
@@ -175,15 +187,21 @@ pub struct DenoiseArgs {
     /// outputs are written as computed, so it is an error when no output is a preview.
     #[arg(long, value_name = "EV", allow_negative_numbers = true)]
     pub exposure: Option<f32>,
-    /// Print each stage's time (and each pyramid level's) after the run.
+    /// Print each stage's time (and each pyramid level's) after the run (also with -v).
     #[arg(long)]
     pub timings: bool,
-    /// Write the denoised colour as half floats; copied channels (alpha, layers) keep their type.
+    /// Seconds between progress lines when stderr is not a terminal (a render farm's log); 0: a
+    /// line at every step. A line is printed at each frame's end whatever this is.
+    #[arg(long, value_name = "SECONDS", default_value_t = super::meter::DEFAULT_EVERY, value_parser = seconds)]
+    pub progress_every: f64,
+    /// Write the denoised colour and its alpha as half floats (the other layers of --keep-layers
+    /// keep their type).
     #[arg(long)]
     pub half: bool,
-    /// EXR compression: none, rle, zips, zip, piz, or the lossy pxr24, b44, b44a, dwaa, dwab.
-    #[arg(long, value_name = "METHOD", default_value = "rle", value_parser = compression)]
-    pub compression: io::Compression,
+    /// EXR compression: none, rle, zips, zip, piz, or the lossy pxr24, b44, b44a, dwaa, dwab
+    /// (default: the colour EXR's own, else zip).
+    #[arg(long, value_name = "METHOD", value_parser = compression)]
+    pub compression: Option<io::Compression>,
     /// Also write every other channel of the colour's EXR unchanged (a multilayer input's passes).
     #[arg(long)]
     pub keep_layers: bool,
@@ -195,6 +213,15 @@ pub struct DenoiseArgs {
     /// frame is merged from fewer neighbours, with a note).
     #[arg(long)]
     pub temporal_strict: bool,
+}
+
+fn seconds(text: &str) -> std::result::Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(s) if (0.0..=86_400.0).contains(&s) => Ok(s),
+        _ => Err(format!(
+            "`{text}` is not a number of seconds from 0 to 86400"
+        )),
+    }
 }
 
 fn compression(name: &str) -> std::result::Result<io::Compression, String> {
@@ -243,6 +270,10 @@ pub struct NamedInputs {
     /// Which layer of a multilayer input is a buffer, e.g. `--map albedo=ViewLayer.DiffCol` (repeatable).
     #[arg(long = "map", value_name = "BUFFER=LAYER")]
     pub maps: Vec<String>,
+    /// The view layer of a multilayer input (Blender's `ViewLayer`) every buffer is read from,
+    /// when the file holds several.
+    #[arg(long = "layer", value_name = "NAME")]
+    pub layer: Option<String>,
 }
 
 impl NamedInputs {
@@ -295,7 +326,9 @@ impl NamedInputs {
         // A colour file given first, beside buffers named one by one, is read as `--color FILE`.
         let features_named = self.slots()[2..].iter().any(|(_, p)| p.is_some());
         let color = match dir {
-            Some(dir) if !features_named => return io::load_input(dir, &maps),
+            Some(dir) if !features_named => {
+                return io::load_input_from(dir, &maps, self.layer.as_deref())
+            }
             Some(dir) if dir.is_dir() => {
                 return Err(Error::config(
                     "--albedo",
@@ -307,6 +340,12 @@ impl NamedInputs {
         };
         if !maps.is_empty() {
             return Err(Error::config("--map", "applies to a multilayer file input"));
+        }
+        if self.layer.is_some() {
+            return Err(Error::config(
+                "--layer",
+                "applies to a multilayer file input; name a buffer's layer as FILE.exr:LAYER",
+            ));
         }
         if let Some(ldr) = self.ldr.as_deref().filter(|p| !io::is_ldr(p)) {
             return Err(Error::file(

@@ -10,178 +10,16 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use super::args::DenoiseArgs;
-use super::frame::{denoise_or_skip, resolved, Loader};
-use super::report::{Entry, Outcome, PipelineJson, SequenceJson};
+use super::frame::{denoise_or_skip, end_of, resolved, Loader};
+use super::meter::{Meter, Verbosity};
+pub use super::pattern::{parse_frames, Pattern};
+use super::report::{Entry, FrameId, Outcome, PipelineJson, SequenceJson};
 use super::stdout::print_json;
 use crate::error::{Error, Result};
 use crate::io;
 use crate::pipeline::Pipeline;
-use crate::progress::Progress;
 use crate::run::RunContext;
 use crate::temporal::Shot;
-
-/// Most frames one `--frames` list may name: far beyond a shot, so a larger count is a typo.
-const MAX_FRAMES: u64 = 1_000_000;
-
-/// A path with one frame token: `#` runs (`####` = 4 digits), printf's `%04d` or Houdini's `$F4`.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Pattern {
-    /// The path as written, for messages.
-    text: String,
-    prefix: String,
-    suffix: String,
-    /// Fewest digits a frame number is written with (zero-padded).
-    width: usize,
-}
-
-impl Pattern {
-    /// The frame token of `text`, if it has one; two tokens are an error.
-    pub fn find(text: &str) -> Result<Option<Pattern>> {
-        let bytes = text.as_bytes();
-        let mut found: Option<(usize, usize, usize)> = None;
-        let mut i = 0;
-        while i < bytes.len() {
-            let Some((len, width)) = token_at(&bytes[i..]) else {
-                i += 1;
-                continue;
-            };
-            if found.is_some() {
-                return Err(Error::config(
-                    text,
-                    "has two frame tokens; a path takes one (####, %04d or $F4)",
-                ));
-            }
-            found = Some((i, i + len, width));
-            i += len;
-        }
-        Ok(found.map(|(start, end, width)| Pattern {
-            text: text.to_string(),
-            prefix: text[..start].to_string(),
-            suffix: text[end..].to_string(),
-            width,
-        }))
-    }
-
-    /// The pattern with frame `n` written in.
-    pub fn frame(&self, n: u64) -> String {
-        format!(
-            "{}{n:0width$}{}",
-            self.prefix,
-            self.suffix,
-            width = self.width
-        )
-    }
-
-    /// The frames whose files exist, in order. The token must be in the file name (not a folder),
-    /// and a `:Layer` after the file name is not part of it.
-    pub fn existing_frames(&self) -> Result<Vec<u64>> {
-        let shown = &self.text;
-        let (dir, head) = match self.prefix.rfind('/') {
-            Some(i) => (&self.prefix[..=i], &self.prefix[i + 1..]),
-            None => ("", self.prefix.as_str()),
-        };
-        if self.suffix.contains('/') {
-            return Err(Error::config(
-                shown,
-                "has its frame token in a folder name; give the frames with --frames",
-            ));
-        }
-        let tail = self.suffix.split(':').next().unwrap_or("");
-        let folder = if dir.is_empty() {
-            Path::new(".")
-        } else {
-            Path::new(dir)
-        };
-        let entries = std::fs::read_dir(folder)
-            .map_err(|e| Error::file(folder, format!("cannot list the frames of {shown}: {e}")))?;
-        let mut frames: Vec<u64> = entries
-            .filter_map(|e| e.ok()?.file_name().into_string().ok())
-            .filter_map(|name| {
-                let digits = name.strip_prefix(head)?.strip_suffix(tail)?;
-                let n: u64 = digits
-                    .bytes()
-                    .all(|b| b.is_ascii_digit())
-                    .then(|| digits.parse().ok())??;
-                // Only the file this pattern writes for `n` (`0012` for `####`, not `012`).
-                (format!("{n:0width$}", width = self.width) == digits).then_some(n)
-            })
-            .collect();
-        frames.sort_unstable();
-        if frames.is_empty() {
-            return Err(Error::file(shown, "no frames found (no file matches)"));
-        }
-        Ok(frames)
-    }
-}
-
-/// The frame token starting `s`, as (its length, the frame number's width).
-fn token_at(s: &[u8]) -> Option<(usize, usize)> {
-    let digits = |s: &[u8]| s.iter().take_while(|b| b.is_ascii_digit()).count();
-    let number = |s: &[u8]| std::str::from_utf8(s).ok()?.parse::<usize>().ok();
-    match s {
-        [b'#', ..] => {
-            let n = s.iter().take_while(|&&b| b == b'#').count();
-            Some((n, n))
-        }
-        [b'%', b'd', ..] => Some((2, 1)),
-        [b'%', b'0', rest @ ..] => {
-            let n = digits(rest);
-            (n > 0 && rest.get(n) == Some(&b'd')).then(|| (n + 3, number(&rest[..n]).unwrap_or(1)))
-        }
-        [b'$', b'F', rest @ ..] => {
-            let n = digits(rest);
-            if n > 0 {
-                Some((n + 2, number(&rest[..n]).unwrap_or(1)))
-            } else if rest
-                .first()
-                .is_some_and(|b| b.is_ascii_alphabetic() || *b == b'_')
-            {
-                None // another variable (`$FPS`, `$F_x`), not the frame
-            } else {
-                Some((2, 1))
-            }
-        }
-        _ => None,
-    }
-}
-
-/// Parses a `--frames` list: `A-B`, `A-BxSTEP`, single frames, comma-separated; sorted, each once.
-pub fn parse_frames(text: &str) -> Result<Vec<u64>> {
-    let bad = |part: &str, why: &str| Error::config("--frames", format!("`{part}` {why}"));
-    let number = |part: &str, s: &str| {
-        s.trim()
-            .parse::<u64>()
-            .map_err(|_| bad(part, "is not A, A-B or A-BxSTEP (whole frame numbers ≥ 0)"))
-    };
-    let mut frames = Vec::new();
-    for part in text.split(',') {
-        let (range, step) = match part.split_once('x') {
-            Some((r, s)) => (r, number(part, s)?),
-            None => (part, 1),
-        };
-        let (a, b) = match range.split_once('-') {
-            Some((a, b)) => (number(part, a)?, number(part, b)?),
-            None if part.contains('x') => return Err(bad(part, "has a step but no range")),
-            None => {
-                let a = number(part, range)?;
-                (a, a)
-            }
-        };
-        if a > b {
-            return Err(bad(part, "ends before it starts"));
-        }
-        if step == 0 {
-            return Err(bad(part, "has step 0"));
-        }
-        if (b - a) / step + 1 + frames.len() as u64 > MAX_FRAMES {
-            return Err(bad(part, &format!("makes more than {MAX_FRAMES} frames")));
-        }
-        frames.extend((a..=b).step_by(step as usize));
-    }
-    frames.sort_unstable();
-    frames.dedup();
-    Ok(frames)
-}
 
 /// Before any work, over the whole plan: no frame's output (`-o`, `--save-buffer`) is an input of
 /// any frame, nor inside a folder that is one (a render set's folder, whose buffers are found by
@@ -332,6 +170,9 @@ impl Batch {
         if numbers.is_empty() {
             return Err(Error::config("--frames", "names no frame"));
         }
+        if !args.keep_going {
+            missing_frames(args, &pattern, &output, &numbers)?;
+        }
         // Named inputs without a token (a static albedo) are the same file in every frame.
         let mut inputs = Vec::new();
         for (name, slot) in args.inputs.slots() {
@@ -431,15 +272,25 @@ impl Batch {
         Ok(())
     }
 
-    /// Denoises every frame in order, one progress bar over all of them.
-    pub fn run(self, args: &DenoiseArgs, pipeline: &Pipeline, ctx: &RunContext) -> Result<()> {
+    /// How many frames the batch denoises.
+    pub fn frame_count(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// Denoises every frame in order, `meter` showing progress over all of them.
+    pub fn run(
+        self,
+        args: &DenoiseArgs,
+        pipeline: &Pipeline,
+        ctx: &RunContext,
+        meter: &Meter,
+    ) -> Result<()> {
         if let Some(dir) = &self.out_dir {
             std::fs::create_dir_all(dir).map_err(|e| Error::output(dir, e))?;
         }
         let total = self.frames.len();
-        let bar = Progress::new(ctx.progress, "frames", total as u64);
         let mut entries = Vec::with_capacity(total);
-        let mut failed: Vec<(String, i32)> = Vec::new();
+        let mut failed: Vec<(FrameId, i32)> = Vec::new();
         let mut stop = None;
         let radius = args.temporal.or(pipeline.temporal).unwrap_or(0);
         let mut shot = match &self.paths {
@@ -453,13 +304,19 @@ impl Batch {
             }
             _ => None,
         };
+        // A note is said once a run, at the first frame it applies to (the channel mapping, a
+        // missing buffer, a clamp): notes of one kind differ from frame to frame only in numbers.
+        let said = std::cell::RefCell::new(std::collections::HashSet::new());
         for frame in self.frames {
+            let id = FrameId::of(frame.number, &frame.label);
             let label = frame.label;
             let say = |line: &str| {
-                if ctx.progress {
-                    bar.println(&format!("gsid: frame {label}: {line}"));
+                let new = once_a_run(line).is_none_or(|key| said.borrow_mut().insert(key));
+                if new {
+                    meter.say_at(Verbosity::Normal, &format!("gsid: frame {label}: {line}"));
                 }
             };
+            meter.start_frame(Some(&label));
             let temporal = shot.is_some() && frame.number.is_some();
             let mut merged = |_: &DenoiseArgs| -> Result<io::LoadedSet> {
                 let (shot, paths, range) = shot.as_mut().expect("a temporal run");
@@ -467,42 +324,40 @@ impl Batch {
                 shot.frame(n, &|k| paths.load(k, *range))
             };
             let load: Option<Loader> = if temporal { Some(&mut merged) } else { None };
-            let outcome = match denoise_or_skip(&frame.args, pipeline, ctx, false, &say, load) {
+            let result = denoise_or_skip(&frame.args, pipeline, ctx, meter, &say, load);
+            meter.end_frame(end_of(&result));
+            let outcome = match result {
                 Ok(outcome) => outcome,
                 Err(e) => {
                     let e = Error::Frame {
                         frame: label.clone(),
                         source: Box::new(e),
                     };
-                    failed.push((label.clone(), e.exit_code()));
+                    failed.push((id.clone(), e.exit_code()));
                     let outcome = Outcome::Failed {
                         error: e.to_string(),
                         exit_code: e.exit_code(),
                     };
                     if args.keep_going {
-                        bar.println(&format!("gsid: error: {e}"));
+                        meter.error(&format!("gsid: error: {e}"));
                     } else {
                         stop = Some(e);
                     }
                     outcome
                 }
             };
-            entries.push(Entry {
-                frame: label,
-                outcome,
-            });
-            bar.inc(1);
+            entries.push(Entry { frame: id, outcome });
             if stop.is_some() {
                 break;
             }
         }
-        bar.finish();
+        meter.finish();
         let skipped = entries
             .iter()
             .filter(|e| matches!(e.outcome, Outcome::Skipped { .. }))
             .count();
         let done = entries.len() - skipped - failed.len();
-        if ctx.progress {
+        if meter.talks() {
             let not_started = total - entries.len();
             let rest = if not_started > 0 {
                 format!(", {not_started} not started")
@@ -516,12 +371,13 @@ impl Batch {
         }
         if args.json {
             let json = SequenceJson {
+                version: env!("CARGO_PKG_VERSION"),
                 pipeline: PipelineJson::of(pipeline),
                 seed: ctx.seed,
                 frames: entries,
                 done,
                 skipped,
-                failed: failed.iter().map(|(l, _)| l.clone()).collect(),
+                failed: failed.iter().map(|(id, _)| id.clone()).collect(),
             };
             print_json(&json)?;
         }
@@ -537,7 +393,7 @@ impl Batch {
             } else {
                 2
             },
-            failed: failed.into_iter().map(|(l, _)| l).collect(),
+            failed: failed.into_iter().map(|(id, _)| id.to_string()).collect(),
             total,
         })
     }
@@ -581,93 +437,65 @@ fn render_set_folders(dir: &Path) -> Result<Vec<String>> {
     Ok(names)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn pattern(text: &str) -> Pattern {
-        Pattern::find(text).unwrap().expect("a frame token")
+/// Frames of `--frames` whose colour input does not exist, listed in one error before any work
+/// (`--skip-existing` frames whose output is there need no input; with `--keep-going` each missing
+/// frame fails on its own and the others are done).
+fn missing_frames(
+    args: &DenoiseArgs,
+    pattern: &Pattern,
+    output: &Pattern,
+    numbers: &[u64],
+) -> Result<()> {
+    if args.frames.is_none() {
+        return Ok(());
     }
-
-    #[test]
-    fn frame_tokens_of_every_style_write_the_same_zero_padded_numbers() {
-        for text in ["shot/b.####.exr", "shot/b.%04d.exr", "shot/b.$F4.exr"] {
-            let p = pattern(text);
-            assert_eq!(p.frame(7), "shot/b.0007.exr", "{text}");
-            assert_eq!(p.frame(12345), "shot/b.12345.exr", "{text}");
-        }
-        for text in ["b.#.exr", "b.%d.exr", "b.$F.exr"] {
-            assert_eq!(pattern(text).frame(7), "b.7.exr", "{text}");
-        }
-        assert_eq!(pattern("a_##_x").frame(3), "a_03_x");
-        for plain in [
-            "shot/b.0001.exr",
-            "b.exr",
-            "$FPS.exr",
-            "100%.exr",
-            "%5d.exr",
-        ] {
-            assert_eq!(Pattern::find(plain).unwrap(), None, "{plain}");
-        }
-        assert!(Pattern::find("s.####/b.####.exr").is_err());
-        assert!(Pattern::find("b.%04d.$F4.exr").is_err());
+    let missing: Vec<String> = numbers
+        .iter()
+        .filter(|&&n| {
+            let input = io::split_layer(Path::new(&pattern.frame(n))).0;
+            let skipped = args.skip_existing && Path::new(&output.frame(n)).is_file();
+            !skipped && std::fs::metadata(input).is_err()
+        })
+        .map(u64::to_string)
+        .collect();
+    if missing.is_empty() {
+        return Ok(());
     }
+    const SHOWN: usize = 20;
+    let more = match missing.len() {
+        n if n > SHOWN => format!(" and {} more", n - SHOWN),
+        _ => String::new(),
+    };
+    let frames = if missing.len() == 1 {
+        "frame"
+    } else {
+        "frames"
+    };
+    Err(Error::config(
+        "--frames",
+        format!(
+            "not found: {frames} {}{more} of {}",
+            missing[..missing.len().min(SHOWN)].join(", "),
+            pattern.text()
+        ),
+    ))
+}
 
-    #[test]
-    fn frames_lists_take_ranges_steps_and_commas() {
-        assert_eq!(parse_frames("1001-1004").unwrap(), [1001, 1002, 1003, 1004]);
-        assert_eq!(parse_frames("1-10x3").unwrap(), [1, 4, 7, 10]);
-        assert_eq!(parse_frames("5,1,3-4").unwrap(), [1, 3, 4, 5]);
-        assert_eq!(parse_frames("7").unwrap(), [7]);
-        assert_eq!(
-            parse_frames("1-3,2-4").unwrap(),
-            [1, 2, 3, 4],
-            "each frame once"
-        );
-        assert_eq!(parse_frames("0-0").unwrap(), [0]);
-        assert_eq!(parse_frames(" 2 - 4 ").unwrap(), [2, 3, 4]);
-        for bad in [
-            "",
-            "a",
-            "5-1",
-            "1-5x0",
-            "1-",
-            "-3",
-            "1,,2",
-            "1-5x",
-            "3x2",
-            "1.5",
-            "0-1000000",
-        ] {
-            let err = parse_frames(bad)
-                .err()
-                .unwrap_or_else(|| panic!("`{bad}` was accepted"));
-            assert_eq!(err.exit_code(), 2);
-            assert!(err.to_string().starts_with("--frames: "), "{err}");
+/// The key a note is said once a run by (its text with every number as `#`), or `None` for a line
+/// each frame says: its result (`IN (WxH) → OUT in …`), a skip, a timing.
+fn once_a_run(line: &str) -> Option<String> {
+    let per_frame =
+        line.contains(") → ") || line.starts_with("skipped, ") || line.starts_with("  ");
+    if per_frame {
+        return None;
+    }
+    let mut key = String::with_capacity(line.len());
+    for c in line.chars() {
+        if !c.is_ascii_digit() {
+            key.push(c);
+        } else if !key.ends_with('#') {
+            key.push('#');
         }
     }
-
-    #[test]
-    fn existing_frames_are_the_files_the_pattern_writes_sorted() {
-        let tmp = tempfile::tempdir().unwrap();
-        for name in [
-            "b.0010.exr",
-            "b.0002.exr",
-            "b.0001.exr",
-            "b.001.exr",
-            "b.12345.exr",
-            "b.00x1.exr",
-            "c.0003.exr",
-            "b.0004.exr.tmp",
-        ] {
-            std::fs::write(tmp.path().join(name), b"").unwrap();
-        }
-        let dir = tmp.path().to_str().unwrap();
-        let p = pattern(&format!("{dir}/b.####.exr"));
-        assert_eq!(p.existing_frames().unwrap(), [1, 2, 10, 12345]);
-        let layered = pattern(&format!("{dir}/b.####.exr:ViewLayer.Combined"));
-        assert_eq!(layered.existing_frames().unwrap(), [1, 2, 10, 12345]);
-        let none = pattern(&format!("{dir}/d.####.exr"));
-        assert_eq!(none.existing_frames().err().unwrap().exit_code(), 2);
-    }
+    Some(key)
 }

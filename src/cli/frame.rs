@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use super::args::DenoiseArgs;
+use super::meter::{Meter, Verbosity};
 use super::report::{self, FrameReport, Outcome};
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
@@ -62,20 +63,31 @@ pub(super) fn denoise_or_skip(
     args: &DenoiseArgs,
     pipeline: &Pipeline,
     ctx: &RunContext,
-    stage_progress: bool,
+    meter: &Meter,
     say: &dyn Fn(&str),
     load: Option<Loader>,
 ) -> Result<Outcome> {
     let output = &args.output;
+    io::remove_stale_beside(output);
     if args.skip_existing && output.as_os_str() != io::STDOUT && output.is_file() {
         say(&format!("skipped, {} exists", output.display()));
         return Ok(Outcome::Skipped {
             output: output.display().to_string(),
         });
     }
-    let report = denoise_frame(args, pipeline, ctx, stage_progress, say, load)?;
-    report::tell(&report, args.timings, say);
+    let report = denoise_frame(args, pipeline, ctx, meter, say, load)?;
+    let timings = args.timings || meter.verbosity() >= Verbosity::Verbose;
+    report::tell(&report, timings, say);
     Ok(Outcome::Done(Box::new(report)))
+}
+
+/// How a frame ended, as its last progress line says.
+pub(super) fn end_of(outcome: &Result<Outcome>) -> &'static str {
+    match outcome {
+        Ok(Outcome::Done(_)) => "done",
+        Ok(Outcome::Skipped { .. }) => "skipped",
+        Ok(Outcome::Failed { .. }) | Err(_) => "failed",
+    }
 }
 
 /// Denoises the one render set `args` names, read by `load` when given (a temporal run's merged
@@ -84,7 +96,7 @@ fn denoise_frame(
     args: &DenoiseArgs,
     pipeline: &Pipeline,
     ctx: &RunContext,
-    stage_progress: bool,
+    meter: &Meter,
     say: &dyn Fn(&str),
     load: Option<Loader>,
 ) -> Result<FrameReport> {
@@ -125,8 +137,14 @@ fn denoise_frame(
             "applies to EXR outputs only",
         ));
     }
+    // Blender writes ZIP; a render that came compressed one way goes back the same way.
+    let compression = args.compression.unwrap_or_else(|| {
+        frame
+            .compression()
+            .map_or(io::Compression::Zip, io::Compression::of_exr)
+    });
     let encoding = io::Encoding {
-        compression: args.compression,
+        compression,
         half: args.half,
         exposure: preview_exposure(args.exposure, &outputs)?,
     };
@@ -148,10 +166,15 @@ fn denoise_frame(
     for line in &set.notes {
         say(line);
     }
-    if args.compression.is_lossy() && (frame.has_alpha() || args.keep_layers) {
+    if compression.is_lossy() && (frame.has_alpha() || args.keep_layers) {
+        let from = if args.compression.is_some() {
+            "--compression"
+        } else {
+            "the input's compression,"
+        };
         say(&format!(
-            "--compression {} is lossy: the copied alpha and layers are not bit-exact",
-            args.compression.name()
+            "{from} {} is lossy: the copied alpha and layers are not bit-exact",
+            compression.name()
         ));
     }
     let read_seconds = start.elapsed().as_secs_f64();
@@ -160,9 +183,11 @@ fn denoise_frame(
     let mut buffers = Buffers::from(set.set);
     let options = DenoiseOptions {
         max_memory: Some(args.run.memory_limit()),
-        ..ctx.denoise_options(stage_progress)
+        progress: Some(meter.pipeline_progress()),
+        ..ctx.denoise_options(false)
     };
     let (out, report) = pipeline.run(&mut buffers, &options)?;
+    meter.writing();
     let write_start = Instant::now();
     let mut saved = Vec::new();
     for (name, pending) in pending_saves {

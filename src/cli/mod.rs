@@ -1,13 +1,18 @@
 //! The `gsid` binary's code. Thin: parse the flags (`args`), call the library, print one line per
 //! error. `denoise` runs the command over one render set (`frame`) or many (`batch`, which hands
-//! each to `frame`); `report` says what a frame did, as text or JSON; `studies` holds ablate,
-//! sweep, eval and the pipeline list; `stdout` prints without panicking. Uses run one way:
-//! denoise → batch → frame → report, and each of them → args, stdout.
+//! each to `frame`); `report` says what a frame did, as text or JSON; `meter` shows progress and
+//! filters what is said by verbosity; `studies` holds ablate, sweep, eval and the pipeline list;
+//! `stdout` prints without panicking. Uses run one way: denoise → batch → frame → report, and each
+//! of them → args, meter, stdout.
 
 mod args;
 pub mod batch;
 mod denoise;
+mod examples;
 mod frame;
+mod hints;
+mod pattern;
+pub mod meter;
 mod report;
 mod stdout;
 mod studies;
@@ -26,7 +31,13 @@ use crate::io;
 pub fn main() -> i32 {
     keep_freed_memory();
     remove_outputs_on_signal();
-    let cli = match Cli::try_parse() {
+    let argv: Vec<std::ffi::OsString> = std::env::args_os().collect();
+    let parsed = Cli::try_parse_from(&argv);
+    if let Some(hint) = hints::quality_flag(&argv, parsed.is_err()) {
+        crate::progress::say_err!("gsid: error: {hint}");
+        return 2;
+    }
+    let cli = match parsed {
         Ok(cli) => cli,
         Err(e) => {
             // Help and version go to stdout (exit 0), usage errors to stderr (exit 2). Help that
@@ -76,7 +87,7 @@ fn remove_outputs_on_signal() {
 /// page by page, when it is next written, and every unmap stops the other cores to flush their TLBs.
 /// With two threads those faults and flushes contend, so stages that allocate much scale worst. One
 /// arena, no mapped chunks and no trimming make a freed buffer the next one's memory. Measured on
-/// 1 and 4 MP (README "Speed"): fewer faults, less system time, and a peak that moves by a few
+/// 1 and 4 MP (docs/RESULTS.md "Speed"): fewer faults, less system time, and a peak that moves by a few
 /// percent either way. Only the binary sets this; a program using the library keeps its own policy.
 fn keep_freed_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
@@ -90,7 +101,9 @@ fn keep_freed_memory() {
 
 fn run(cli: Cli) -> crate::error::Result<()> {
     match cli.command {
-        Command::Denoise(args) => denoise::denoise(&args, cli.quiet),
+        Command::Denoise(args) => {
+            denoise::denoise(&args, meter::Verbosity::of(cli.quiet, cli.verbose))
+        }
         Command::Render(args) => crate::render::run(&args, cli.quiet),
         Command::Eval(args) => studies::eval(&args, cli.quiet),
         Command::Ablate(args) => studies::ablate(&args, cli.quiet),

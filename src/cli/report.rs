@@ -89,6 +89,8 @@ impl PipelineJson {
 /// `gsid denoise --json` of one render set.
 #[derive(Serialize)]
 pub struct SingleJson {
+    /// The gsid that wrote the report (`CARGO_PKG_VERSION`).
+    pub version: &'static str,
     pub pipeline: PipelineJson,
     pub seed: u64,
     #[serde(flatten)]
@@ -98,17 +100,43 @@ pub struct SingleJson {
 /// `gsid denoise --json` of a sequence or a folder of render sets.
 #[derive(Serialize)]
 pub(super) struct SequenceJson {
+    pub version: &'static str,
     pub pipeline: PipelineJson,
     pub seed: u64,
     pub frames: Vec<Entry>,
     pub done: usize,
     pub skipped: usize,
-    pub failed: Vec<String>,
+    pub failed: Vec<FrameId>,
+}
+
+/// A frame of a batch in JSON: a pattern's frame number as a number, a render set folder's name as
+/// a string.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+#[serde(untagged)]
+pub(super) enum FrameId {
+    Number(u64),
+    Name(String),
+}
+
+impl FrameId {
+    /// A pattern's frame by its number, else a render set by its name.
+    pub fn of(number: Option<u64>, label: &str) -> Self {
+        number.map_or_else(|| FrameId::Name(label.to_string()), FrameId::Number)
+    }
+}
+
+impl std::fmt::Display for FrameId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            FrameId::Number(n) => write!(f, "{n}"),
+            FrameId::Name(name) => f.write_str(name),
+        }
+    }
 }
 
 #[derive(Serialize)]
 pub(super) struct Entry {
-    pub frame: String,
+    pub frame: FrameId,
     #[serde(flatten)]
     pub outcome: Outcome,
 }

@@ -85,7 +85,19 @@ pub(super) fn sweep(args: &SweepArgs, quiet: bool) -> Result<()> {
     }
     let base = args.run.spec()?;
     base.build()?;
-    let axes = sweep::parse_axes(&args.varies, &args.run.sets)?;
+    // Keys written from the top of the tree, so `--vary gsid.walks` and `--set pyramid.gsid.walks`
+    // are seen as one key; a key that names no stage stays as typed for the error to quote.
+    let full = |args: &[String]| -> Vec<String> {
+        args.iter()
+            .map(|a| match a.split_once('=') {
+                Some((k, v)) => base
+                    .full_key(k.trim())
+                    .map_or_else(|_| a.clone(), |k| format!("{k}={v}")),
+                None => a.clone(),
+            })
+            .collect()
+    };
+    let axes = sweep::parse_axes(&full(&args.varies), &full(&args.run.sets))?;
     let settings = sweep::settings(&base, &axes)?;
     let pipelines = settings.iter().map(|s| &s.pipeline);
     args.run.check_memory(pipelines, Some(&args.dir))?;

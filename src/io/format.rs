@@ -93,6 +93,22 @@ pub fn check_output(
     })
 }
 
+/// `image` (RGB) with the colour's alpha as a fourth channel, when the colour had one.
+fn with_alpha(image: &Image, frame: &Frame) -> Option<Image> {
+    let alpha = frame.alpha_values().filter(|_| image.channels() == 3)?;
+    let (w, h) = (image.width(), image.height());
+    if alpha.len() != w * h {
+        return None;
+    }
+    let data = image
+        .data()
+        .chunks_exact(3)
+        .zip(&alpha)
+        .flat_map(|(px, &a)| [px[0], px[1], px[2], a])
+        .collect();
+    Image::from_vec(w, h, 4, data).ok()
+}
+
 /// Writes `image` to a reserved output in the format its path names, and commits it.
 /// An EXR output keeps what `frame` holds of the colour's file (windows, attributes, alpha, layers).
 pub fn write_image(
@@ -106,7 +122,10 @@ pub fn write_image(
             return pending.write_exr_framed(image, frame, encoding.compression, encoding.half)
         }
         ImageFormat::Pfm => pfm::encode(image),
-        ImageFormat::Png => preview::encode(image, Preview::Png, encoding.exposure),
+        ImageFormat::Png => match with_alpha(image, frame) {
+            Some(rgba) => preview::encode(&rgba, Preview::Png, encoding.exposure),
+            None => preview::encode(image, Preview::Png, encoding.exposure),
+        },
         ImageFormat::Jpeg => preview::encode(image, Preview::Jpeg, encoding.exposure),
     }
     .map_err(|m| Error::output(pending.path(), m))?;

@@ -145,19 +145,38 @@ pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
 
 /// Loads a render set folder, or one multilayer or multi-part EXR file (`maps`: `buffer=layer`).
 pub fn load_input(path: &Path, maps: &[(String, String)]) -> Result<LoadedSet> {
+    load_input_from(path, maps, None)
+}
+
+/// [`load_input`], with every buffer of a multilayer file read from the view layer `view_layer`
+/// (Blender's `ViewLayer` of `ViewLayer.Combined`) when one is given.
+pub fn load_input_from(
+    path: &Path,
+    maps: &[(String, String)],
+    view_layer: Option<&str>,
+) -> Result<LoadedSet> {
     if !path.is_file() {
-        if !maps.is_empty() {
-            return Err(Error::config(
-                "--map",
-                "applies to a multilayer file, not a folder",
-            ));
+        for (flag, given) in [
+            ("--map", !maps.is_empty()),
+            ("--layer", view_layer.is_some()),
+        ] {
+            if given {
+                return Err(Error::config(
+                    flag,
+                    "applies to a multilayer file, not a folder",
+                ));
+            }
         }
         return load_render_set(path);
     }
-    let layers = passes::Layers::read(path)?;
+    let mut layers = passes::Layers::read(path)?;
+    if let Some(name) = view_layer {
+        layers.choose_view_layer(path, name)?;
+    }
     let mut picked = layers.resolve(path, maps)?.into_iter();
     let color = picked.next().expect("colour is resolved first");
     let frame = layers.frame(path, &color);
+    let noisy_note = layers.noisy_note(&color);
     let mut sources = vec![("color".to_string(), color.source)];
     let mut set = RenderSet::new(color.image);
     let mut notes = Vec::new();
@@ -199,6 +218,7 @@ pub fn load_input(path: &Path, maps: &[(String, String)]) -> Result<LoadedSet> {
     })?;
     let mapping = LoadedSet::mapping_line(&sources);
     notes.insert(0, format!("{}: {mapping}", path.display()));
+    notes.extend(noisy_note);
     let recorded = layers.recorded();
     if !recorded.is_empty() {
         notes.push(format!("not used: {}", recorded.join(", ")));

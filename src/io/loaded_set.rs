@@ -8,7 +8,7 @@ use super::passes;
 use super::read::read_image;
 use crate::error::{Error, Result};
 use crate::image::Image;
-use crate::render_set::{NoiseInputs, RenderSet};
+use crate::render_set::{Feature, NoiseInputs, RenderSet};
 
 /// A render set as loaded from disk: its buffers, the files they came from, and notes for the user.
 pub struct LoadedSet {
@@ -33,6 +33,10 @@ pub struct LoadedSet {
 
 impl LoadedSet {
     /// A loaded set, with the note on the feature buffers it lacks (each loader's last step).
+    ///
+    /// Material and shadow are gsid's own buffers (its render sets carry them; Blender, Arnold
+    /// and RenderMan write nothing like them), so only a render-set folder is told it lacks them:
+    /// a note on every Cycles file would tell the user nothing they could act on.
     pub(super) fn new(
         dir: PathBuf,
         set: RenderSet,
@@ -42,7 +46,17 @@ impl LoadedSet {
         mut notes: Vec<String>,
         layered: bool,
     ) -> Self {
-        let missing: Vec<&str> = set.features.missing().iter().map(|f| f.name()).collect();
+        let folder = !layered
+            && files
+                .first()
+                .is_some_and(|(_, c)| is_folder_colour(c, &dir));
+        let missing: Vec<&str> = set
+            .features
+            .missing()
+            .iter()
+            .filter(|f| folder || !matches!(f, Feature::Material | Feature::Shadow))
+            .map(|f| f.name())
+            .collect();
         if !missing.is_empty() {
             notes.push(format!(
                 "missing buffers (their features are off): {}",
@@ -218,4 +232,12 @@ pub fn find_reference(dir: &Path) -> Option<PathBuf> {
     dir.parent()
         .map(|p| p.join("reference.exr"))
         .filter(|p| p.is_file())
+}
+
+/// Whether `color` is a render-set folder's colour file (`DIR/color.*`), not a file named alone.
+fn is_folder_colour(color: &Path, dir: &Path) -> bool {
+    color.parent() == Some(dir)
+        && color
+            .file_stem()
+            .is_some_and(|s| s.eq_ignore_ascii_case("color"))
 }

@@ -7,11 +7,12 @@
 //!
 //! `read`: one image file; `load`: render sets (a folder, a multilayer file, named buffers) into a
 //! [`LoadedSet`] (`loaded_set`, with the checks every loader applies); `output`: outputs reserved and
-//! committed whole; `format`: the format an output is written in; `compression`: the EXR methods;
+//! committed whole; `format`: the format an output is written in; `footprint`: the memory a read takes, from the header; `compression`: the EXR methods;
 //! `exr_file`, [`pfm`], `preview`: the codecs; [`passes`]: multilayer pass names.
 
 mod compression;
 mod exr_file;
+mod footprint;
 mod format;
 mod load;
 mod loaded_set;
@@ -24,10 +25,15 @@ mod stale;
 
 pub use compression::Compression;
 pub use exr_file::{Frame, Plane};
+pub use footprint::read_bytes;
 pub use format::{check_output, write_image, Encoding, ImageFormat};
-pub use load::{colour_dims, is_render_set, load_input, load_named, load_render_set, split_layer};
+pub use load::{
+    colour_dims, is_render_set, load_input, load_input_from, load_named, load_render_set,
+    split_layer,
+};
 pub use loaded_set::{find_reference, LoadedSet};
 pub use output::{
-    remove_pending_outputs, write_exr, NewFolder, PendingFolder, PendingOutput, STDOUT,
+    remove_pending_outputs, remove_stale_beside, write_exr, NewFolder, PendingFolder,
+    PendingOutput, STDOUT,
 };
 pub use read::{is_ldr, read_color, read_image, read_text, srgb_to_linear};

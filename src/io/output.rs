@@ -136,27 +136,96 @@ fn parent_dir(path: &Path) -> PathBuf {
     }
 }
 
+/// Folders an output's path needed and this run created: removed again (innermost first, each
+/// only if empty) when dropped before [`MadeFolders::keep`], or by the signal handler.
+struct MadeFolders(Vec<PathBuf>);
+
+impl MadeFolders {
+    /// Creates the folders missing on the way to `dir`, each registered as it is made.
+    fn create(dir: &Path, path: &Path) -> Result<Self> {
+        let missing: Vec<PathBuf> = dir
+            .ancestors()
+            .filter(|d| !d.as_os_str().is_empty())
+            .take_while(|d| std::fs::symlink_metadata(d).is_err())
+            .map(Path::to_path_buf)
+            .collect();
+        let mut made = MadeFolders(Vec::new());
+        for d in missing.into_iter().rev() {
+            match std::fs::create_dir(&d) {
+                Ok(()) => {
+                    created().push(d.clone());
+                    made.0.push(d);
+                }
+                // Another process (a farm's other task) made it meanwhile: it is not ours to remove.
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists && d.is_dir() => {}
+                Err(e) => {
+                    return Err(Error::output(
+                        path,
+                        format!("cannot create folder {}: {e}", d.display()),
+                    ))
+                }
+            }
+        }
+        Ok(made)
+    }
+
+    /// The output is in place: its folders stay.
+    fn keep(mut self) {
+        self.forget();
+    }
+
+    fn forget(&mut self) {
+        let mut list = created();
+        for d in self.0.drain(..) {
+            if let Some(i) = list.iter().position(|p| *p == d) {
+                list.remove(i);
+            }
+        }
+    }
+}
+
+impl Drop for MadeFolders {
+    fn drop(&mut self) {
+        for d in self.0.iter().rev() {
+            let _ = std::fs::remove_dir(d);
+        }
+        self.forget();
+    }
+}
+
+/// Removes what dead runs left in the folder `path` will be in (`stale`), once a run and folder:
+/// also when no output is written there (every frame of a requeued chunk skipped).
+pub fn remove_stale_beside(path: &Path) {
+    let dir = parent_dir(path);
+    if path.as_os_str() != STDOUT && dir.is_dir() {
+        stale::sweep(&dir);
+    }
+}
+
 /// A temporary file or folder (`make`) named `.gsid-HOST-PID-*.tmp` in the folder `path` will be
-/// in, which must exist; what dead runs left there is removed first (`stale`).
+/// in, made (with the folders above it) if missing; what dead runs left there is removed first
+/// (`stale`).
 fn temp_beside<T>(
     path: &Path,
     make: impl FnOnce(&tempfile::Builder, &Path) -> std::io::Result<T>,
-) -> Result<T> {
+) -> Result<(T, MadeFolders)> {
     let dir = parent_dir(path);
+    let made = MadeFolders::create(&dir, path)?;
     if !dir.is_dir() {
         return Err(Error::output(
             path,
-            format!("folder {} does not exist", dir.display()),
+            format!("{} is not a folder", dir.display()),
         ));
     }
     stale::sweep(&dir);
-    make(
+    let made_here = make(
         tempfile::Builder::new()
             .prefix(&stale::prefix())
             .suffix(".tmp"),
         &dir,
     )
-    .map_err(|e| Error::output(path, e))
+    .map_err(|e| Error::output(path, e))?;
+    Ok((made_here, made))
 }
 
 /// Where a reserved output's bytes go.
@@ -173,6 +242,8 @@ enum Target {
 pub struct PendingOutput {
     path: PathBuf,
     target: Target,
+    /// Folders made for it, removed if it is never committed.
+    folders: Option<MadeFolders>,
 }
 
 impl PendingOutput {
@@ -181,6 +252,7 @@ impl PendingOutput {
             return Ok(PendingOutput {
                 path: path.to_path_buf(),
                 target: Target::Stdout,
+                folders: None,
             });
         }
         match std::fs::metadata(path) {
@@ -193,15 +265,17 @@ impl PendingOutput {
                 return Ok(PendingOutput {
                     path: path.to_path_buf(),
                     target: Target::InPlace(file),
+                    folders: None,
                 });
             }
             _ => {}
         }
-        let tmp = temp_beside(path, |b, dir| b.tempfile_in(dir))?;
+        let (tmp, folders) = temp_beside(path, |b, dir| b.tempfile_in(dir))?;
         let listed = Registered::new(tmp.path());
         Ok(PendingOutput {
             path: path.to_path_buf(),
             target: Target::Temp(tmp, listed),
+            folders: Some(folders),
         })
     }
 
@@ -276,9 +350,13 @@ impl PendingOutput {
     /// Renames a temporary file into place; devices and stdout are already written.
     fn commit(self) -> Result<()> {
         match self.target {
-            Target::Temp(tmp, _listed) => commit(tmp, &self.path),
-            Target::InPlace(_) | Target::Stdout => Ok(()),
+            Target::Temp(tmp, _listed) => commit(tmp, &self.path)?,
+            Target::InPlace(_) | Target::Stdout => {}
         }
+        if let Some(folders) = self.folders {
+            folders.keep();
+        }
+        Ok(())
     }
 }
 
@@ -329,6 +407,8 @@ pub struct PendingFolder {
     path: PathBuf,
     tmp: Option<tempfile::TempDir>,
     _listed: Registered,
+    /// Folders made for it, removed if it is never committed.
+    folders: Option<MadeFolders>,
 }
 
 impl PendingFolder {
@@ -361,7 +441,7 @@ impl PendingFolder {
                 ));
             }
         }
-        let tmp = temp_beside(path, |b, dir| b.tempdir_in(dir))?;
+        let (tmp, folders) = temp_beside(path, |b, dir| b.tempdir_in(dir))?;
         let listed = Registered::new(tmp.path());
         std::fs::write(
             tmp.path().join(marker),
@@ -372,6 +452,7 @@ impl PendingFolder {
             path: path.to_path_buf(),
             tmp: Some(tmp),
             _listed: listed,
+            folders: Some(folders),
         })
     }
 
@@ -408,6 +489,9 @@ impl PendingFolder {
         }
         if let Some(aside) = old {
             let _ = std::fs::remove_dir_all(aside);
+        }
+        if let Some(folders) = self.folders.take() {
+            folders.keep();
         }
         Ok(())
     }

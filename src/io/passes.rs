@@ -21,8 +21,11 @@ use crate::render_set::Feature;
 /// old denoising data (`Denoising Variance`; 2.79: `Denoising Image Variance`) store it. Mitsuba's
 /// `moment` integrator writes a second moment (`m2_*`, in XYZ), which needs the sample count to
 /// become one, so it is not read.
+///
+/// `Noisy Image` is Blender's noisy beauty, written beside a `Combined` its denoiser already
+/// filtered: gsid denoises the noisy one. Any pass `X` also gives way to a `Noisy X` beside it.
 pub const PASSES: [(&str, &[&str]); 9] = [
-    ("color", &["Combined", "", "beauty", "rgba"]),
+    ("color", &["Noisy Image", "Combined", "", "beauty", "rgba"]),
     (
         "albedo",
         &["Denoising Albedo", "albedo", "diffuse_albedo", "DiffCol"],
@@ -93,6 +96,18 @@ pub struct Layers {
     layers: Vec<Layer>,
     /// Each part's windows and attributes.
     parts: Vec<Frame>,
+    /// Channels in the file, those of view layers not chosen included.
+    channels_in_file: usize,
+}
+
+/// The pass a `Noisy …` pass is the noisy twin of (`Noisy Image` → `Combined`).
+fn denoised_twin(pass: &str) -> Option<&str> {
+    let rest = pass.strip_prefix("Noisy ")?;
+    Some(if rest.eq_ignore_ascii_case("Image") {
+        "Combined"
+    } else {
+        rest
+    })
 }
 
 struct Layer {
@@ -107,6 +122,11 @@ struct Layer {
 impl Layer {
     fn pass(&self) -> &str {
         self.name.rsplit('.').next().unwrap_or("")
+    }
+
+    /// The view layer (`ViewLayer` of `ViewLayer.Combined`), `""` for an unprefixed pass.
+    fn view_layer(&self) -> &str {
+        self.name.rsplit_once('.').map_or("", |(v, _)| v)
     }
 
     fn describe(&self) -> String {
@@ -169,18 +189,105 @@ impl Layers {
                 }),
             }
         }
+        let channels_in_file = layers.iter().map(|l| l.channels.len()).sum();
         Ok(Layers {
             width: file.width,
             height: file.height,
             layers,
             parts: file.parts,
+            channels_in_file,
         })
+    }
+
+    /// The distinct view layers of the file's passes, in file order.
+    fn view_layers(&self) -> Vec<&str> {
+        let mut names: Vec<&str> = Vec::new();
+        for l in &self.layers {
+            let v = l.view_layer();
+            if !v.is_empty() && !names.contains(&v) {
+                names.push(v);
+            }
+        }
+        names
+    }
+
+    /// Keeps only the passes of view layer `name` (`--layer`): every buffer is then read from it.
+    pub fn choose_view_layer(&mut self, path: &Path, name: &str) -> Result<()> {
+        let known: Vec<String> = self.view_layers().iter().map(|v| v.to_string()).collect();
+        if !known.iter().any(|v| v == name) {
+            let list = if known.is_empty() {
+                "it has none (its passes are not prefixed by a view layer)".to_string()
+            } else {
+                format!("view layers: {}", known.join(", "))
+            };
+            return Err(Error::file(
+                path,
+                format!("has no view layer `{name}` (--layer); {list}"),
+            ));
+        }
+        self.layers.retain(|l| l.view_layer() == name);
+        Ok(())
+    }
+
+    /// The error for a buffer that two or more layers match: across view layers it names them
+    /// once and asks for `--layer`; inside one, it asks for `--map`.
+    fn ambiguous(&self, path: &Path, buffer: &str, matches: &[usize]) -> Error {
+        let mut views: Vec<&str> = Vec::new();
+        for &m in matches {
+            let v = self.layers[m].view_layer();
+            if !views.contains(&v) {
+                views.push(v);
+            }
+        }
+        if views.len() > 1 && views.iter().all(|v| !v.is_empty()) {
+            let all = self.view_layers();
+            return Error::file(
+                path,
+                format!(
+                    "holds {} view layers ({}): choose one with --layer NAME",
+                    all.len(),
+                    all.join(", ")
+                ),
+            );
+        }
+        Error::file(
+            path,
+            format!(
+                "{buffer} is ambiguous (use --map {buffer}=LAYER); {}",
+                self.found()
+            ),
+        )
+    }
+
+    /// The denoised pass beside `colour` when it is a `Noisy …` pass (Blender's `Combined`
+    /// beside `Noisy Image`), by index.
+    fn twin_of(&self, colour: &Picked) -> Option<usize> {
+        let layer = &self.layers[colour.layer];
+        let twin = denoised_twin(layer.pass())?;
+        self.layers.iter().position(|l| {
+            l.view_layer() == layer.view_layer()
+                && l.pass().eq_ignore_ascii_case(twin)
+                && l.pick(3).is_some()
+        })
+    }
+
+    /// The note for a noisy colour read in place of the denoised pass beside it, if that is so.
+    pub fn noisy_note(&self, colour: &Picked) -> Option<String> {
+        let twin = &self.layers[self.twin_of(colour)?];
+        Some(format!(
+            "color ← {} (the noisy beauty), not {}: that is the renderer's own denoised result",
+            self.layers[colour.layer].name, twin.name
+        ))
     }
 
     /// What an output keeps when `colour` is the colour: its part's windows and attributes, its
     /// layer's `A`, and the file's other channels (there are some unless the layer is all).
+    ///
+    /// A `Noisy Image` colour is written back as the `Combined` beside it (the pass a compositor
+    /// reads as the beauty), its alpha its own or else `Combined`'s.
     pub fn frame(&self, path: &Path, colour: &Picked) -> Frame {
-        let layer = &self.layers[colour.layer];
+        let noisy = &self.layers[colour.layer];
+        let layer = self.twin_of(colour).map_or(noisy, |t| &self.layers[t]);
         let full = |c: usize| layer.channels[c].1.desc.name.to_string();
         let rgb: Vec<String> = layer
             .pick(3)
@@ -188,8 +295,9 @@ impl Layers {
             .into_iter()
             .map(full)
             .collect();
-        let alpha = layer.find(&["A"]).map(|a| layer.channels[a].1.clone());
-        let all: usize = self.layers.iter().map(|l| l.channels.len()).sum();
+        let alpha_of = |l: &Layer| l.find(&["A"]).map(|a| l.channels[a].1.clone());
+        let alpha = alpha_of(noisy).or_else(|| alpha_of(layer));
+        let all = self.channels_in_file;
         let own = rgb.len() + alpha.is_some() as usize;
         self.parts[layer.part]
             .clone()
@@ -307,11 +415,16 @@ impl Layers {
             .iter()
             .find(|(b, _)| *b == buffer)
             .map_or(&[][..], |(_, names)| *names);
-        let Some(matches) = names.iter().find_map(|n| {
+        // Each name's noisy twin (`Noisy Shadow Catcher` before `Shadow Catcher`) first.
+        let wanted = names
+            .iter()
+            .flat_map(|n| [format!("Noisy {n}"), n.to_string()])
+            .filter(|n| !n.eq_ignore_ascii_case("Noisy "));
+        let Some(matches) = wanted.into_iter().find_map(|n| {
             let m: Vec<usize> = (0..self.layers.len())
                 .filter(|&l| {
                     let l = &self.layers[l];
-                    l.pass().eq_ignore_ascii_case(n) && l.pick(channels).is_some()
+                    l.pass().eq_ignore_ascii_case(&n) && l.pick(channels).is_some()
                 })
                 .collect();
             (!m.is_empty()).then_some(m)
@@ -319,13 +432,7 @@ impl Layers {
             return Ok(None);
         };
         if matches.len() > 1 {
-            return Err(Error::file(
-                path,
-                format!(
-                    "{buffer} is ambiguous (use --map {buffer}=LAYER); {}",
-                    self.found()
-                ),
-            ));
+            return Err(self.ambiguous(path, buffer, &matches));
         }
         let layer = &self.layers[matches[0]];
         let image = self.image(layer, channels).expect("picked channels");

@@ -50,6 +50,11 @@ pub struct RenderArgs {
     /// Use the all-effects integrator instead of the one specialised to the scene (for comparisons).
     #[arg(long)]
     pub all_effects: bool,
+    /// Most memory the render may take, in MiB; a scene whose estimate (its size and its image
+    /// textures, from their headers) is larger is refused before anything is decoded or written
+    /// (default: three quarters of this machine's memory).
+    #[arg(long, value_name = "MIB")]
+    pub max_memory: Option<u64>,
 }
 
 /// The file that marks a folder `gsid render` wrote: only such a folder is replaced by a new render.
@@ -66,7 +71,12 @@ pub fn run(args: &RenderArgs, quiet: bool) -> Result<()> {
         return Err(Error::config("--spp", "sample counts must be ≥ 1"));
     }
     let text = crate::io::read_text(&args.scene, scene::MAX_SCENE_BYTES, "scene file")?;
-    let scene = Scene::load(&args.scene)?;
+    let limit = args
+        .max_memory
+        .map_or_else(crate::options::default_max_memory, |mib| {
+            mib.saturating_mul(1 << 20)
+        });
+    let scene = Scene::load_within(&args.scene, limit)?;
     let seed = args.seed.unwrap_or(scene.seed);
     let effects = if args.all_effects {
         EffectSet::ALL

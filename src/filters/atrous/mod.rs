@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
-use crate::features::{Features, Recipe, Tone, Weights};
+use crate::features::{Recipe, Tone, Weights};
 use crate::filters::stage::{parse_params, read_mask, Context, Stage, StageIo};
 use crate::render_set::Feature;
 
@@ -175,21 +175,6 @@ impl Stage for AtrousStage {
             }
         }
         // Zero rows: checks every feature buffer's size and reports the missing ones, before any work.
-        let (_, off) = Features::build_rows(
-            &color,
-            buffers.features(),
-            &p.weights,
-            p.tone,
-            p.exposure,
-            0..0,
-        )?;
-        if !off.is_empty() {
-            ctx.note(format!(
-                "{}: features off (buffer missing): {}",
-                self.id,
-                off.join(", ")
-            ));
-        }
         for k in 0..p.iterations {
             // The colour feature is read from each pass's input, which gets cleaner every pass.
             ctx.meter.check()?;

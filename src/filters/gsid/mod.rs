@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
-use crate::features::{Features, Recipe, Tone, Weights};
+use crate::features::{Recipe, Tone, Weights};
 use crate::filters::stage::{
     parse_params, read_mask, Context, Stage, StageIo, MAX_STEPS_PER_PIXEL,
 };
@@ -181,21 +181,8 @@ pub fn run_gsid(
     label: &str,
 ) -> Result<(crate::image::Image, u64)> {
     let color = buffers.require_channels(input, 3)?;
-    // Which features are off does not depend on the rows: ask once, on an empty row range.
-    let (_, off) = Features::build_rows(
-        color,
-        buffers.features(),
-        &params.weights,
-        params.tone,
-        params.exposure,
-        0..0,
-    )?;
-    if !off.is_empty() {
-        ctx.note(format!(
-            "{label}: features off (buffer missing): {}",
-            off.join(", ")
-        ));
-    }
+    // A missing buffer's features are off; the loader says so once, naming only buffers the
+    // renderer could have written (a note here would repeat it for every stage and level).
     let mask = read_mask(buffers, params.mask.as_deref(), color.dims(), ctx, label)?;
     let scales = params
         .scaling()

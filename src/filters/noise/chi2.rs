@@ -9,7 +9,7 @@ pub(crate) const TRIM: f64 = 0.2;
 /// (`filters/blend/error_estimate.rs`): the estimate's unit.
 /// Its adjacent pairs share pixels, so the iid finite-n value is not exact for them either, and the
 /// noise laws were measured on this one: the finite-n value (4 % lower variance at 40 pairs) cost
-/// `cycles-studio` 0.006 SSIM at 1 spp (README "Noise-aware strengths").
+/// `cycles-studio` 0.006 SSIM at 1 spp (docs/RESULTS.md "Noise-aware strengths").
 pub(super) const TRIMMED_CHI2_MEAN: f64 = 0.437_724_594_903_639;
 
 /// The mean of the smallest `keep` share of χ²₁ samples, E[χ²₁ | below its `keep` quantile]: the

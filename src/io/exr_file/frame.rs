@@ -29,6 +29,8 @@ pub struct Frame {
     source: Option<PathBuf>,
     /// Those channels, once [`Frame::read_layers`] has read them.
     pub(super) layers: Vec<Plane>,
+    /// How the colour's part was compressed, which an output follows unless told otherwise.
+    compression: Option<exr::compression::Compression>,
 }
 
 impl Frame {
@@ -38,6 +40,7 @@ impl Frame {
                 header.shared_attributes.clone(),
                 header.own_attributes.clone(),
             )),
+            compression: Some(header.compression),
             ..Frame::default()
         }
     }
@@ -70,6 +73,20 @@ impl Frame {
 
     pub fn has_alpha(&self) -> bool {
         self.alpha.is_some()
+    }
+
+    /// The colour's compression, when it came from an EXR file.
+    pub fn compression(&self) -> Option<exr::compression::Compression> {
+        self.compression
+    }
+
+    /// The colour's alpha as f32, one value a pixel (for an 8-bit preview, which keeps it).
+    pub fn alpha_values(&self) -> Option<Vec<f32>> {
+        Some(match &self.alpha.as_ref()?.samples {
+            FlatSamples::F16(v) => v.iter().map(|s| s.to_f32()).collect(),
+            FlatSamples::F32(v) => v.clone(),
+            FlatSamples::U32(v) => v.iter().map(|&s| s as f32).collect(),
+        })
     }
 
     /// The same windows and attributes, without alpha or layers (for intermediate buffers).
@@ -114,6 +131,14 @@ pub struct Channels {
 /// Reads [`Channels`]; every channel must cover the first part's data window at full resolution.
 pub fn read_all_channels(path: &Path) -> Result<Channels> {
     use exr::prelude::{ReadChannels, ReadLayers};
+    let bad = |e: exr::error::Error| Error::file(path, format!("not a readable EXR file ({e})"));
+    let file_len = std::fs::metadata(path)
+        .map_err(|e| Error::file(path, e))?
+        .len();
+    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(bad)?;
+    for header in meta.headers.iter().filter(|h| !h.deep) {
+        super::read::check_declared(path, header, file_len)?;
+    }
     let image = exr::prelude::read()
         .no_deep_data()
         .largest_resolution_level()
@@ -121,7 +146,7 @@ pub fn read_all_channels(path: &Path) -> Result<Channels> {
         .all_layers()
         .all_attributes()
         .from_file(path)
-        .map_err(|e| Error::file(path, format!("not a readable EXR file ({e})")))?;
+        .map_err(bad)?;
     let window = |l: &exr::image::Layer<_>| (l.attributes.layer_position, l.size);
     let first = image.layer_data.first().map(window);
     let mut channels = Vec::new();
@@ -168,6 +193,7 @@ pub fn read_all_channels(path: &Path) -> Result<Channels> {
         }
         parts.push(Frame {
             attributes: Some((image.attributes.clone(), layer.attributes)),
+            compression: Some(layer.encoding.compression),
             ..Frame::default()
         });
     }

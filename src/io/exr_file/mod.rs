@@ -11,5 +11,5 @@ mod read;
 mod write;
 
 pub use frame::{read_all_channels, Frame, Plane};
-pub use read::{channel_count, declared_size, is_multilayer, read, MAX_PIXELS};
+pub use read::{channel_count, declared_layout, declared_size, is_multilayer, read, MAX_PIXELS};
 pub use write::{check, write, Compression, Encoding};

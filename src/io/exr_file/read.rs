@@ -48,30 +48,7 @@ pub fn read(path: &Path, channels: usize, alpha: bool) -> Result<(Image, Frame)>
             ),
         ));
     }
-    let size = format!("{}x{}", header.layer_size.x(), header.layer_size.y());
-    let pixels = header.layer_size.x() as u64 * header.layer_size.y() as u64;
-    if pixels > MAX_PIXELS {
-        return Err(Error::file(
-            path,
-            format!(
-                "its header declares {size} pixels, more than the {MAX_PIXELS} this program reads"
-            ),
-        ));
-    }
-    // A damaged header can declare gigapixels in a small file, and every block is allocated at
-    // its declared size before its data is checked. No codec the crate reads packs more than about
-    // 1000 bytes of samples into one byte (deflate's limit), so a larger claim is an error.
-    let declared = (header.layer_size.x() as u128)
-        * (header.layer_size.y() as u128)
-        * (header.channels.bytes_per_pixel as u128);
-    if declared > file_len as u128 * 4096 + (1 << 20) {
-        return Err(Error::file(
-            path,
-            format!(
-                "not a readable EXR file (its header declares {size} pixels, more than a {file_len}-byte file can hold)"
-            ),
-        ));
-    }
+    check_declared(path, header, file_len)?;
     let chunks: Vec<Chunk> = reader
         .filter_chunks(false, |_, tile, block| {
             block.layer == layer && tile.is_largest_resolution_level()
@@ -318,11 +295,80 @@ pub fn is_multilayer(path: &Path) -> Result<bool> {
     Ok(meta.headers.len() > 1 || meta.headers.iter().any(named))
 }
 
+/// Refuses, before anything is decoded, a part whose header declares more pixels than this
+/// program reads ([`MAX_PIXELS`]) or more samples than the file's `file_len` bytes can hold with
+/// its compression method: a damaged header can declare gigapixels in a small file, and every
+/// block is allocated at its declared size before its data is checked.
+pub(super) fn check_declared(
+    path: &Path,
+    header: &exr::meta::header::Header,
+    file_len: u64,
+) -> Result<()> {
+    let size = format!("{}x{}", header.layer_size.x(), header.layer_size.y());
+    let pixels = header.layer_size.x() as u64 * header.layer_size.y() as u64;
+    if pixels > MAX_PIXELS {
+        return Err(Error::file(
+            path,
+            format!(
+                "its header declares {size} pixels, more than the {MAX_PIXELS} this program reads"
+            ),
+        ));
+    }
+    let declared = pixels as u128 * header.channels.bytes_per_pixel as u128;
+    let holds = (file_len as u128)
+        .saturating_mul(max_ratio(header.compression))
+        .saturating_add(HEADER_SLACK);
+    if declared > holds {
+        return Err(Error::file(
+            path,
+            format!(
+                "not a readable EXR file (its header declares {size} pixels, more than a {file_len}-byte file can hold with {:?} compression)",
+                header.compression
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Bytes of samples a file may declare beyond what its compression can pack into its length:
+/// headers, offset tables and chunk framing of small images.
+const HEADER_SLACK: u128 = 1 << 20;
+
+/// The most bytes of samples one byte of a chunk can hold with `compression`: stored samples
+/// one; run-length 64 (a two-byte run repeats at most 128 bytes); deflate about 1032 (its
+/// limit), 1376 for PXR24's 24-bit floats; B44 packs a flat 4×4 block of halves into 3 bytes.
+/// PIZ's Huffman runs are bounded by 4096, well above their limit. The DWA codecs store a flat
+/// channel in a few bytes, whatever its size: no bound (the memory estimate still applies).
+fn max_ratio(compression: exr::compression::Compression) -> u128 {
+    use exr::compression::Compression as C;
+    match compression {
+        C::Uncompressed => 1,
+        C::RLE => 64,
+        C::ZIP1 | C::ZIP16 => 1032,
+        C::PXR24 => 1376,
+        C::B44 | C::B44A => 11,
+        C::DWAA(_) | C::DWAB(_) => u128::MAX,
+        _ => 4096,
+    }
+}
+
 /// The size of the file's first part's data window, from its header alone.
 pub fn declared_size(path: &Path) -> Option<(usize, usize)> {
     let meta = exr::meta::MetaData::read_from_file(path, false).ok()?;
     let size = meta.headers.first()?.layer_size;
     Some((size.width(), size.height()))
+}
+
+/// The first non-deep part's pixel count and bytes of samples per pixel (every channel, at its
+/// stored type), from the header alone: what [`read`] decompresses.
+pub fn declared_layout(path: &Path) -> Option<(u64, u64)> {
+    let meta = exr::meta::MetaData::read_from_file(path, false).ok()?;
+    let header = meta.headers.iter().find(|h| !h.deep)?;
+    let size = header.layer_size;
+    Some((
+        size.width() as u64 * size.height() as u64,
+        header.channels.bytes_per_pixel as u64,
+    ))
 }
 
 /// How many channels the file's first part holds, from its header alone.

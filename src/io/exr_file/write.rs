@@ -108,33 +108,37 @@ pub struct Encoding {
     pub half: bool,
 }
 
-/// A plain (not layered) colour's alpha, written as `A` beside a 3-channel image: its samples
-/// copied for a write, left out when only the header is wanted.
-fn plain_alpha(c: usize, frame: &Frame, with_samples: bool) -> Option<Plane> {
-    let alpha = frame
-        .alpha
-        .as_ref()
-        .filter(|_| c == 3 && frame.layers.is_empty())?;
-    Some(Plane {
-        desc: ChannelDescription {
-            name: Text::from("A"),
-            ..alpha.desc.clone()
-        },
-        samples: if with_samples {
-            alpha.samples.clone()
-        } else {
-            FlatSamples::F32(Vec::new())
-        },
-    })
+/// The colour's alpha as written beside a 3-channel image: named `A` unless the other layers are
+/// written too (then under its own name), as stored, or as f16 with `--half` (every channel of
+/// the beauty half, so an RGBA reader takes the file as one type); samples left out when only the
+/// header is wanted.
+fn written_alpha(c: usize, frame: &Frame, half: bool, with_samples: bool) -> Option<Plane> {
+    let alpha = frame.alpha.as_ref().filter(|_| c == 3)?;
+    let mut desc = alpha.desc.clone();
+    if frame.layers.is_empty() {
+        desc.name = Text::from("A");
+    }
+    let samples = match (&alpha.samples, half) {
+        _ if !with_samples => FlatSamples::F32(Vec::new()),
+        (FlatSamples::F32(v), true) => {
+            desc.sample_type = SampleType::F16;
+            FlatSamples::F16(v.iter().map(|&s| f16::from_f32(s)).collect())
+        }
+        (samples, _) => samples.clone(),
+    };
+    if half && desc.sample_type == SampleType::F32 {
+        desc.sample_type = SampleType::F16;
+    }
+    Some(Plane { desc, samples })
 }
 
 /// The image's channel names (`R,G,B`, `Y` for one channel, or the colour's own names when its
-/// other layers are written too) and the stored planes written beside them: `plain_alpha`, or
-/// a layered colour's alpha, then the other layers.
+/// other layers are written too) and the stored planes written beside them: the alpha, then the
+/// other layers.
 fn layout<'a>(
     c: usize,
     frame: &'a Frame,
-    plain_alpha: Option<&'a Plane>,
+    alpha: Option<&'a Plane>,
 ) -> (Vec<String>, Vec<&'a Plane>) {
     let layered = !frame.layers.is_empty();
     let names: Vec<String> = match c {
@@ -143,10 +147,7 @@ fn layout<'a>(
         4 => ["R", "G", "B", "A"].map(String::from).to_vec(),
         _ => vec!["Y".to_string()],
     };
-    let mut planes: Vec<&Plane> = plain_alpha.into_iter().collect();
-    if let (3, Some(alpha), true) = (c, &frame.alpha, layered) {
-        planes.push(alpha);
-    }
+    let mut planes: Vec<&Plane> = alpha.into_iter().collect();
     planes.extend(&frame.layers);
     (names, planes)
 }
@@ -170,7 +171,7 @@ pub fn check(
 ) -> exr::error::UnitResult {
     // Never written: its samples are the zero pages calloc hands out, not touched here.
     let image = Image::filled(dims.0, dims.1, channels, 0.0);
-    let alpha = plain_alpha(channels, frame, false);
+    let alpha = written_alpha(channels, frame, encoding.half, false);
     let (names, planes) = layout(channels, frame, alpha.as_ref());
     let (header, _) = header(
         &image,
@@ -193,7 +194,7 @@ pub fn write(
     encoding: Encoding,
 ) -> exr::error::UnitResult {
     let (w, c) = (image.width(), image.channels());
-    let alpha = plain_alpha(c, frame, true);
+    let alpha = written_alpha(c, frame, encoding.half, true);
     let (names, planes) = layout(c, frame, alpha.as_ref());
     let (header, sources) = header(
         image,
