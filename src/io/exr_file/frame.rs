@@ -137,7 +137,7 @@ pub fn read_all_channels(path: &Path) -> Result<Channels> {
         .len();
     let meta = exr::meta::MetaData::read_from_file(path, false).map_err(bad)?;
     for header in meta.headers.iter().filter(|h| !h.deep) {
-        super::read::check_declared(path, header, file_len)?;
+        super::declared::check_declared(path, header, file_len)?;
     }
     let image = exr::prelude::read()
         .no_deep_data()

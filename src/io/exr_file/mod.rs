@@ -6,10 +6,12 @@
 //! and converted to interleaved f32, or built and compressed, in parallel on the pool the caller
 //! runs in. Headers are the ones the image-level API writes, so files are byte-identical (tested).
 
+mod declared;
 mod frame;
 mod read;
 mod write;
 
+pub use declared::MAX_PIXELS;
 pub use frame::{read_all_channels, Frame, Plane};
-pub use read::{channel_count, declared_layout, declared_size, is_multilayer, read, MAX_PIXELS};
+pub use read::{channel_count, declared_layout, declared_size, is_multilayer, read};
 pub use write::{check, write, Compression, Encoding};
