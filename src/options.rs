@@ -93,6 +93,28 @@ impl fmt::Debug for DenoiseOptions {
     }
 }
 
+/// The limit `--max-memory MIB` sets, in bytes: `mib` MiB, else [`default_max_memory`].
+pub fn memory_limit(mib: Option<u64>) -> u64 {
+    mib.map_or_else(default_max_memory, |mib| mib.saturating_mul(1 << 20))
+}
+
+/// Refuses work whose estimate `need` is above `limit` bytes, in one line: `what` says what needs
+/// how much, given the estimate in MiB ("a 64x64 image needs about 40 MiB …").
+pub fn check_memory(need: u64, limit: u64, what: impl FnOnce(u64) -> String) -> Result<()> {
+    const MIB: u64 = 1 << 20;
+    if need > limit {
+        return Err(Error::config(
+            "--max-memory",
+            format!(
+                "{}, more than the {} MiB allowed (default: three quarters of this machine's memory)",
+                what(need / MIB),
+                limit / MIB
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// Three quarters of this machine's memory: what a run may take unless told otherwise (OIDN's
 /// `maxMemoryMB` plays the same part), leaving room for the rest of the machine.
 pub fn default_max_memory() -> u64 {

@@ -155,20 +155,12 @@ impl Pipeline {
     /// Refuses, before any work, a `w`×`h` run whose estimate ([`Pipeline::peak_bytes`]) is above
     /// `limit` bytes, naming both.
     pub fn check_memory(&self, w: usize, h: usize, limit: u64) -> Result<()> {
-        let need = self.peak_bytes(w, h);
-        if need > limit {
-            const MIB: u64 = 1 << 20;
-            return Err(Error::config(
-                "--max-memory",
-                format!(
-                    "a {w}x{h} image needs about {} MiB with pipeline {}, more than the {} MiB allowed (default: three quarters of this machine's memory)",
-                    need / MIB,
-                    self.name,
-                    limit / MIB
-                ),
-            ));
-        }
-        Ok(())
+        crate::options::check_memory(self.peak_bytes(w, h), limit, |mib| {
+            format!(
+                "a {w}x{h} image needs about {mib} MiB with pipeline {}",
+                self.name
+            )
+        })
     }
 
     /// The most walk steps a pixel may take, over every stage.

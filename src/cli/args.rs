@@ -131,10 +131,7 @@ impl RunOptions {
 
     /// The memory limit in bytes: `--max-memory`, else three quarters of this machine's memory.
     pub fn memory_limit(&self) -> u64 {
-        self.max_memory
-            .map_or_else(crate::options::default_max_memory, |mib| {
-                mib.saturating_mul(1 << 20)
-            })
+        crate::options::memory_limit(self.max_memory)
     }
 
     /// The pipeline with the overrides applied, as a spec (not yet built).

@@ -71,11 +71,7 @@ pub fn run(args: &RenderArgs, quiet: bool) -> Result<()> {
         return Err(Error::config("--spp", "sample counts must be ≥ 1"));
     }
     let text = crate::io::read_text(&args.scene, scene::MAX_SCENE_BYTES, "scene file")?;
-    let limit = args
-        .max_memory
-        .map_or_else(crate::options::default_max_memory, |mib| {
-            mib.saturating_mul(1 << 20)
-        });
+    let limit = crate::options::memory_limit(args.max_memory);
     let scene = Scene::load_within(&args.scene, limit)?;
     let seed = args.seed.unwrap_or(scene.seed);
     let effects = if args.all_effects {

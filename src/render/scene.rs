@@ -106,21 +106,10 @@ impl SceneSpec {
 
     /// Refuses a scene whose [`SceneSpec::peak_bytes`] is above `limit`, naming both.
     pub fn check_memory(&self, base: &Path, limit: u64) -> Result<()> {
-        let need = self.peak_bytes(base);
-        if need > limit {
-            const MIB: u64 = 1 << 20;
-            return Err(Error::config(
-                "--max-memory",
-                format!(
-                    "rendering this {}x{} scene and its textures needs about {} MiB, more than the {} MiB allowed (default: three quarters of this machine's memory)",
-                    self.render.width,
-                    self.render.height,
-                    need / MIB,
-                    limit / MIB
-                ),
-            ));
-        }
-        Ok(())
+        let (w, h) = (self.render.width, self.render.height);
+        crate::options::check_memory(self.peak_bytes(base), limit, |mib| {
+            format!("rendering this {w}x{h} scene and its textures needs about {mib} MiB")
+        })
     }
 
     pub fn build(&self, base: &Path) -> Result<Scene> {
