@@ -13,7 +13,8 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-GSID = ROOT / "target" / "release" / "gsid"
+# GSID_BIN=path scores another build (an older binary kept for a before/after table), as the tests do.
+GSID = Path(os.environ["GSID_BIN"]) if os.environ.get("GSID_BIN") else ROOT / "target" / "release" / "gsid"
 ALL_FIXTURES = ["mitsuba-cornell", "cornell", "caustics", "textured", "detail"]
 MULTILAYER_FIXTURES = ["cycles-studio", "cycles-glass", "cycles-fog"]
 # What compare_denoisers.py runs by default: every folder fixture and the Blender renders.

@@ -28,6 +28,7 @@ pub const KINDS: &[&str] = &[
     "pyramid",
     "regress",
     "reliability",
+    "spread",
 ];
 
 /// Builds a stage from its spec: a composite kind from its children and overrides, any other kind
@@ -54,6 +55,11 @@ pub fn build(spec: &StageSpec) -> Result<Box<dyn Stage>> {
             params(),
         )?)),
         "pyramid" => Ok(Box::new(pyramid::PyramidStage::from_spec(spec, build)?)),
+        "spread" => Ok(Box::new(outlier::SpreadStage::from_table(
+            id,
+            io,
+            params(),
+        )?)),
         "regress" => Ok(Box::new(regress::RegressStage::from_table(
             id,
             io,

@@ -69,7 +69,19 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
                 format!("without {} (single scale)", stage.id)
             } else if spec.stages.len() > 1 {
                 v.stages.remove(i);
-                format!("without {}", stage.id)
+                // A `spread` gives back the light of the clamp it follows: it goes with it.
+                let light = stage.params.get("light").and_then(toml::Value::as_str);
+                let before = v.stages.len();
+                v.stages.retain(|s| {
+                    s.kind != "spread"
+                        || light.is_none()
+                        || s.params.get("light").and_then(toml::Value::as_str) != light
+                });
+                if v.stages.len() < before {
+                    format!("without {} (and its spread)", stage.id)
+                } else {
+                    format!("without {}", stage.id)
+                }
             } else {
                 continue;
             };
@@ -98,7 +110,7 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
 }
 
 /// The rows that show what measuring the noise buys, for a pipeline with `noise` stages: every
-/// noise stage, noise key, blend and regression taken out ("fixed σ", the behaviour before the
+/// noise stage, noise key, blend, regression and spread taken out ("fixed σ", the behaviour before the
 /// stages followed the noise; both mixes are weighed by the noise); one σ per image (every `local_noise` set to 0, where a stage follows each pixel's
 /// own noise too); the noise always estimated from the image (a `variance` buffer, if any,
 /// ignored); and the walks taken out (the pyramid removed, à-trous on the colour, σ still from
@@ -115,7 +127,7 @@ fn noise_variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
     let mut fixed = spec.clone();
     fixed
         .stages
-        .retain(|s| !is_noise(s) && s.kind != "blend" && s.kind != "regress");
+        .retain(|s| !is_noise(s) && !matches!(s.kind.as_str(), "blend" | "regress" | "spread"));
     for s in &mut fixed.stages {
         s.params.remove("noise");
         s.children.retain(|c| !is_noise(c));

@@ -19,19 +19,33 @@ mod detect;
 mod neighbourhood;
 mod params;
 mod repair;
+mod spread;
 mod surface;
 
 pub use detect::detect;
 pub use neighbourhood::{luminance, luminance_image};
 pub use params::{Action, DetectParams, Detection, Guides, Rule};
 pub use repair::repair;
+pub use spread::{spread_light, Given, SpreadParams, SpreadStage};
 
 use serde::{Deserialize, Serialize};
 
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::filters::stage::{parse_params, Context, Stage, StageIo};
+use crate::image::Image;
 use crate::render_set::Feature;
+
+/// What a repair took from each pixel, channel by channel (never below 0: a median's colour may
+/// be brighter in one channel, and that is not light to give back).
+fn removed_light(color: &Image, repaired: &Image) -> Image {
+    let mut removed = color.par_clone();
+    for (r, &after) in removed.data_mut().iter_mut().zip(repaired.data()) {
+        let d = *r - after;
+        *r = if d.is_finite() && d > 0.0 { d } else { 0.0 };
+    }
+    removed
+}
 
 /// Parameters of the `outlier` stage (keys of its table in a pipeline file).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -49,6 +63,9 @@ pub struct OutlierParams {
     pub action: Action,
     /// Name of the 1-channel mask buffer written (1.0 = outlier), e.g. for `gsid`'s `mask` key.
     pub mask: String,
+    /// Name of a 3-channel buffer to write the light the repair removed into (input − repaired,
+    /// 0 elsewhere), for a `spread` stage to give back; none by default.
+    pub light: Option<String>,
     /// zscore: smallest MAD of log luminance (log units ≈ relative spread): flat areas stay unflagged.
     pub mad_floor: f32,
     /// feature: smallest std of tone-mapped luminance, for the same reason.
@@ -67,6 +84,7 @@ impl Default for OutlierParams {
             radius: None,
             action: Action::Median,
             mask: "outlier_mask".into(),
+            light: None,
             mad_floor: 0.25,
             std_floor: 0.02,
             albedo_tol: 0.1,
@@ -96,6 +114,9 @@ impl OutlierParams {
         }
         if self.mask.is_empty() {
             return Err(Error::config("mask", "must name a buffer"));
+        }
+        if self.light.as_deref() == Some("") {
+            return Err(Error::config("light", "must name a buffer"));
         }
         if !(0.0..=10.0).contains(&self.mad_floor) {
             return Err(Error::range("mad_floor", self.mad_floor, "0 to 10"));
@@ -167,7 +188,9 @@ impl Stage for OutlierStage {
     }
 
     fn writes(&self) -> Vec<String> {
-        vec![self.io.output.clone(), self.params.mask.clone()]
+        let mut writes = vec![self.io.output.clone(), self.params.mask.clone()];
+        writes.extend(self.params.light.clone());
+        writes
     }
 
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
@@ -194,6 +217,10 @@ impl Stage for OutlierStage {
             p.rule.name(),
             self.params.action.name()
         ));
+        if let Some(name) = &self.params.light {
+            let removed = removed_light(color, &repaired);
+            buffers.insert(name.clone(), removed)?;
+        }
         buffers.insert(self.io.output.clone(), repaired)?;
         buffers.insert(self.params.mask.clone(), mask)?;
         Ok(0)

@@ -1,0 +1,464 @@
+//! The `spread` stage: the light the outlier clamp took from its fireflies is given back to their
+//! surfaces, so a caustic or a highlight keeps its brightness while the spike is gone.
+//!
+//! A firefly is one lucky path's estimate of light that belongs, on average, to the pixels around
+//! it on the same surface. The clamp (`action = "clamp"` with `light = "…"`) writes what it removed;
+//! this stage shares each flagged pixel's removed light over its `(2·radius+1)²` window as a
+//! Gaussian bump (σ = radius / 2), weighted by how much each pixel shares its surface (albedo and
+//! normal, the outlier stage's tolerances), and adds it to the filtered image. No pixel takes more than `cap` of its own noise's standard
+//! deviation: the light comes back as a rise below the noise, never as a new spot or a blotch, and
+//! what would exceed that (the energy of a truly huge spike) stays removed. Each receiver sums its
+//! sources in a fixed order, so any thread count gives the same bits.
+//!
+//! ```toml
+//! [[stage]]
+//! kind = "spread"
+//! input = "out"            # the filtered image
+//! light = "outlier_light"  # what the outlier clamp removed (its `light` key)
+//! noise = "noise"          # the colour's variance (a `noise` stage's output)
+//! output = "out"
+//! radius = 15
+//! cap = 0.5
+//! ```
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::params::Guides;
+use crate::buffers::Buffers;
+use crate::error::{Error, Result};
+use crate::filters::noise::measured::clean;
+use crate::filters::stage::{parse_params, Context, Stage, StageIo};
+use crate::image::Image;
+use crate::meter::Meter;
+use crate::render_set::Feature;
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SpreadParams {
+    /// The removed light, 3 channels (the outlier stage's `light` buffer).
+    pub light: String,
+    /// The colour's noise variance, 3 channels.
+    pub noise: String,
+    /// Half the window's side: the light of a flagged pixel is shared among `(2r+1)²` pixels.
+    pub radius: u32,
+    /// Most light a pixel takes, in its own noise standard deviations.
+    pub cap: f64,
+    /// Largest albedo difference (RGB distance) of "the same surface", as in the outlier stage.
+    pub albedo_tol: f32,
+    /// Largest normal difference (1 − n·n′)/2 of "the same surface", as in the outlier stage.
+    pub normal_tol: f32,
+}
+
+impl Default for SpreadParams {
+    fn default() -> Self {
+        SpreadParams {
+            light: "outlier_light".into(),
+            noise: "noise".into(),
+            radius: 15,
+            cap: 0.5,
+            albedo_tol: 0.1,
+            normal_tol: 0.05,
+        }
+    }
+}
+
+impl SpreadParams {
+    /// Checks every key against its allowed range; the error names the key.
+    pub fn validate(&self) -> Result<()> {
+        if !(1..=32).contains(&self.radius) {
+            return Err(Error::range("radius", self.radius, "1 to 32"));
+        }
+        if !(self.cap > 0.0 && self.cap <= 1e6) {
+            return Err(Error::range("cap", self.cap, "above 0, at most 1e6"));
+        }
+        for (key, value, hi, range) in [
+            ("albedo_tol", self.albedo_tol, 2.0, "above 0, at most 2"),
+            ("normal_tol", self.normal_tol, 1.0, "above 0, at most 1"),
+        ] {
+            if !(value > 0.0 && value <= hi) {
+                return Err(Error::range(key, value, range));
+            }
+        }
+        for (key, name) in [("light", &self.light), ("noise", &self.noise)] {
+            if name.is_empty() {
+                return Err(Error::config(key, "must name a buffer"));
+            }
+        }
+        Ok(())
+    }
+}
+
+pub struct SpreadStage {
+    id: String,
+    io: StageIo,
+    pub params: SpreadParams,
+}
+
+impl SpreadStage {
+    pub fn from_table(id: &str, io: StageIo, table: toml::Table) -> Result<Self> {
+        let params: SpreadParams = parse_params(id, table)?;
+        params.validate().map_err(|e| e.in_context(id))?;
+        Ok(SpreadStage {
+            id: id.to_string(),
+            io,
+            params,
+        })
+    }
+}
+
+impl Stage for SpreadStage {
+    fn id(&self) -> &str {
+        &self.id
+    }
+
+    fn requires(&self) -> Vec<String> {
+        vec![
+            self.io.input.clone(),
+            self.params.light.clone(),
+            self.params.noise.clone(),
+        ]
+    }
+
+    fn writes(&self) -> Vec<String> {
+        vec![self.io.output.clone()]
+    }
+
+    fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
+        let (filtered, light, variance) = crate::filters::stage::filtered_original_noise(
+            buffers,
+            &self.io.input,
+            &self.params.light,
+            &self.params.noise,
+        )?;
+        let guides = Guides {
+            albedo: buffers.features().get(Feature::Albedo),
+            normal: buffers.features().get(Feature::Normal),
+        };
+        let mut out = filtered.par_clone();
+        let given = spread_light(&mut out, light, variance, &guides, &self.params, &ctx.meter);
+        ctx.meter.check()?;
+        if given.removed > 0.0 {
+            ctx.note(format!(
+                "{}: {:.0} % of the light the clamp removed given back to its surfaces",
+                self.id,
+                100.0 * given.returned / given.removed
+            ));
+        }
+        buffers.insert(self.io.output.clone(), out)?;
+        Ok(0)
+    }
+}
+
+/// How much light a spread had to give (the sum of the removed light over pixels and channels)
+/// and how much it gave back under the cap.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Given {
+    pub removed: f64,
+    pub returned: f64,
+}
+
+/// A pixel that lost light: where, and how much each pixel of its window takes at most.
+struct Source {
+    x: usize,
+    light: [f64; 3],
+}
+
+/// Adds to `out` the light of `light` (nonzero where the clamp took some), shared among each
+/// source's window by surface weight and capped per pixel at `cap` noise σ of `variance`.
+pub fn spread_light(
+    out: &mut Image,
+    light: &Image,
+    variance: &Image,
+    guides: &Guides,
+    params: &SpreadParams,
+    meter: &Meter,
+) -> Given {
+    let (w, h) = out.dims();
+    let r = params.radius as usize;
+    let (albedo, normal) = (
+        guides.albedo.map(Image::data),
+        guides.normal.map(Image::data),
+    );
+    let (ka, kn) = (
+        0.5 / (params.albedo_tol * params.albedo_tol),
+        0.5 / (params.normal_tol * params.normal_tol),
+    );
+    // −ln of the surface weight exp(−½(Δalbedo/tol)² − ½(Δnormal/tol)²), Δ as the outlier stage
+    // measures it (a zero normal is unknown and matches anything).
+    let unlike = |i: usize, j: usize| -> f32 {
+        let mut e = 0.0;
+        if let Some(a) = albedo {
+            let d: f32 = (0..3).map(|k| (a[3 * i + k] - a[3 * j + k]).powi(2)).sum();
+            e += ka * d;
+        }
+        if let Some(n) = normal {
+            let (p, q) = (&n[3 * i..3 * i + 3], &n[3 * j..3 * j + 3]);
+            if p.iter().any(|&v| v != 0.0) && q.iter().any(|&v| v != 0.0) {
+                let dot = p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
+                let dn = ((1.0 - dot) * 0.5).clamp(0.0, 1.0);
+                e += kn * dn * dn;
+            }
+        }
+        e
+    };
+    // Each source shares its light as a Gaussian bump (σ half the radius: a smooth rise, no
+    // square), at the density it would have on a flat surface filling the window, not over the
+    // pixels of its own surface alone: a firefly on a sliver of surface would otherwise pour it all
+    // into a few pixels and make a new spot. What would fall on other surfaces is lost.
+    let side = 2 * r + 1;
+    let s2 = 2.0 * (r as f32 / 2.0).powi(2);
+    // −ln of the bump, by offset in the window.
+    let far: Vec<f32> = (0..side * side)
+        .map(|k| {
+            let (dx, dy) = ((k % side) as f32 - r as f32, (k / side) as f32 - r as f32);
+            (dx * dx + dy * dy) / s2
+        })
+        .collect();
+    let bump: Vec<f64> = far.iter().map(|&e| (-e as f64).exp()).collect();
+    let area: f64 = bump.iter().sum::<f64>() - 1.0;
+    let sources: Vec<Vec<Source>> = (0..h)
+        .into_par_iter()
+        .map(|y| {
+            (0..w)
+                .filter_map(|x| {
+                    let l = light.pixel(y * w + x);
+                    let light: [f64; 3] = std::array::from_fn(|k| positive(l[k]) / area);
+                    (!light.iter().all(|&v| v == 0.0)).then_some(Source { x, light })
+                })
+                .collect()
+        })
+        .collect();
+    let removed: f64 = area
+        * sources
+            .iter()
+            .flatten()
+            .map(|s| s.light.iter().sum::<f64>())
+            .sum::<f64>();
+    if removed == 0.0 {
+        return Given::default();
+    }
+    meter.pass(h);
+    let v = variance.data();
+    let returned: f64 = out
+        .data_mut()
+        .par_chunks_mut(3 * w.max(1))
+        .enumerate()
+        .map(|(y, row)| {
+            if meter.cancelled() {
+                return 0.0;
+            }
+            meter.rows(1);
+            let mut gained = vec![[0.0f64; 3]; w];
+            let rows = y.saturating_sub(r)..(y + r + 1).min(h);
+            for (sy, row_sources) in rows.clone().zip(&sources[rows]) {
+                for s in row_sources {
+                    let i = sy * w + s.x;
+                    let x0 = s.x.saturating_sub(r);
+                    let x1 = (s.x + r + 1).min(w);
+                    for (x, gain) in (x0..x1).zip(&mut gained[x0..x1]) {
+                        // The spike itself takes nothing back.
+                        if sy == y && x == s.x {
+                            continue;
+                        }
+                        let at = (y + r - sy) * side + (x + r - s.x);
+                        let u = unlike(i, y * w + x);
+                        // Below exp(−18) a share is nothing worth its exponential; one surface
+                        // (u = 0) needs none.
+                        if far[at] + u > 18.0 {
+                            continue;
+                        }
+                        let share = if u > 0.0 {
+                            bump[at] * (-u).exp() as f64
+                        } else {
+                            bump[at]
+                        };
+                        for (g, l) in gain.iter_mut().zip(s.light) {
+                            *g += share * l;
+                        }
+                    }
+                }
+            }
+            let mut returned = 0.0;
+            for (x, (px, gain)) in row.chunks_exact_mut(3).zip(&gained).enumerate() {
+                let j = y * w + x;
+                for k in 0..3 {
+                    let sd = clean(v[3 * j + k]).sqrt();
+                    let add = gain[k].min(params.cap * sd);
+                    if add > 0.0 {
+                        px[k] = (px[k] as f64 + add).min(f32::MAX as f64) as f32;
+                        returned += add;
+                    }
+                }
+            }
+            returned
+        })
+        .sum();
+    Given { removed, returned }
+}
+
+/// A removed light's value as spread: finite and positive, else nothing.
+fn positive(v: f32) -> f64 {
+    if v.is_finite() && v > 0.0 {
+        v as f64
+    } else {
+        0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn params(cap: f64) -> SpreadParams {
+        SpreadParams {
+            cap,
+            ..SpreadParams::default()
+        }
+    }
+
+    /// A 31×31 frame of 0.2 with one pixel's removed light at its centre.
+    fn one_source(removed: f32) -> (Image, Image, Image) {
+        let (w, h) = (31, 31);
+        let out = Image::filled(w, h, 3, 0.2);
+        let mut light = Image::new(w, h, 3);
+        light.pixel_mut(15 * w + 15).fill(removed);
+        (out, light, Image::filled(w, h, 3, 0.01))
+    }
+
+    #[test]
+    fn without_a_cap_every_bit_of_light_comes_back_around_the_spike() {
+        let (mut out, light, variance) = one_source(9.0);
+        let meter = Meter::default();
+        let given = spread_light(
+            &mut out,
+            &light,
+            &variance,
+            &Guides::default(),
+            &params(1e6),
+            &meter,
+        );
+        let rise = |x: usize, y: usize| (out.pixel(y * 31 + x)[0] - 0.2) as f64;
+        let added: f64 = (0..31)
+            .flat_map(|y| (0..31).map(move |x| (x, y)))
+            .map(|(x, y)| rise(x, y))
+            .sum();
+        assert!((added - 9.0).abs() < 1e-3, "{added}");
+        assert!(
+            (given.returned - 27.0).abs() < 1e-6 && (given.removed - 27.0).abs() < 1e-9,
+            "{given:?}"
+        );
+        // Not on the spike itself; a smooth bump, symmetric, falling away from it.
+        assert_eq!(rise(15, 15), 0.0);
+        assert!(
+            (rise(14, 15) - rise(15, 16)).abs() < 1e-7
+                && (rise(10, 12) - rise(20, 18)).abs() < 1e-7
+        );
+        assert!(rise(14, 15) > rise(10, 15) && rise(10, 15) > rise(2, 15) && rise(2, 15) > 0.0);
+    }
+
+    #[test]
+    fn no_pixel_rises_by_more_than_the_cap_and_the_spike_stays_gone() {
+        let (mut out, light, variance) = one_source(1e6);
+        let given = spread_light(
+            &mut out,
+            &light,
+            &variance,
+            &Guides::default(),
+            &params(0.5),
+            &Meter::default(),
+        );
+        let most = out.data().iter().fold(0.0f32, |m, &v| m.max(v));
+        assert!((most - 0.25).abs() < 1e-6, "{most}");
+        assert!(given.returned < given.removed, "{given:?}");
+    }
+
+    #[test]
+    fn light_stays_on_its_surface() {
+        // Left half albedo 0.2, right half 0.8; the source on the left, beside the edge.
+        let (mut out, mut light, variance) = one_source(0.0);
+        let albedo = Image::from_fn(31, 31, 3, |x, _, _| if x < 16 { 0.2 } else { 0.8 });
+        light.pixel_mut(15 * 31 + 15).fill(3.0);
+        let guides = Guides {
+            albedo: Some(&albedo),
+            normal: None,
+        };
+        spread_light(
+            &mut out,
+            &light,
+            &variance,
+            &guides,
+            &params(1e6),
+            &Meter::default(),
+        );
+        let right: f64 = (0..31 * 31)
+            .filter(|i| i % 31 >= 16)
+            .map(|i| out.pixel(i)[0] as f64 - 0.2)
+            .sum();
+        // exp(−½ (0.6 / 0.1)²) of it, and that only beside the edge.
+        assert!(right.abs() < 1e-6 * 3.0, "{right} went across the edge");
+    }
+
+    #[test]
+    fn bad_light_and_bad_noise_add_nothing() {
+        let (mut out, mut light, _) = one_source(0.0);
+        light
+            .pixel_mut(3)
+            .copy_from_slice(&[f32::NAN, f32::INFINITY, -1.0]);
+        light.pixel_mut(40).fill(1.0);
+        let variance = Image::filled(31, 31, 3, f32::NAN);
+        let before = out.clone();
+        spread_light(
+            &mut out,
+            &light,
+            &variance,
+            &Guides::default(),
+            &params(0.5),
+            &Meter::default(),
+        );
+        assert_eq!(out, before);
+    }
+
+    #[test]
+    fn the_same_bits_on_one_and_two_threads() {
+        let (w, h) = (40, 23);
+        let out = Image::from_fn(w, h, 3, |x, y, c| ((x * 7 + y * 13 + c) % 11) as f32 / 11.0);
+        let light = Image::from_fn(w, h, 3, |x, y, _| {
+            if (x * 31 + y * 17) % 23 == 0 {
+                5.0
+            } else {
+                0.0
+            }
+        });
+        let variance = Image::filled(w, h, 3, 0.04);
+        let albedo = Image::from_fn(
+            w,
+            h,
+            3,
+            |x, y, _| if (x / 5 + y / 7) % 2 == 0 { 0.3 } else { 0.6 },
+        );
+        let run = |threads| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| {
+                    let mut o = out.clone();
+                    let guides = Guides {
+                        albedo: Some(&albedo),
+                        normal: None,
+                    };
+                    spread_light(
+                        &mut o,
+                        &light,
+                        &variance,
+                        &guides,
+                        &params(0.5),
+                        &Meter::default(),
+                    );
+                    o
+                })
+        };
+        assert_eq!(run(1), run(2));
+    }
+}
