@@ -29,7 +29,13 @@ pub fn keep_weights(
     leak: f64,
 ) -> Vec<f32> {
     let inputs = (color, filtered, variance);
-    keep_weights_metered(kernel, inputs, features, (tolerance, leak), &Meter::default())
+    keep_weights_metered(
+        kernel,
+        inputs,
+        features,
+        (tolerance, leak),
+        &Meter::default(),
+    )
 }
 
 /// [`keep_weights`] of (colour, filtered, variance) with (tolerance, leak), skipping its remaining

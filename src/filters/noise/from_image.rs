@@ -86,7 +86,11 @@ fn estimate_in(kernel: Kernel, color: &Image, features: &FeatureSet, meter: &Met
         .step_by(2)
         .flat_map_iter(|y| {
             // A cancelled run's rows are skipped: none is alone, nothing more is computed.
-            let rows = if meter.cancelled() { 0..0 } else { y * w..(y + 1) * w };
+            let rows = if meter.cancelled() {
+                0..0
+            } else {
+                y * w..(y + 1) * w
+            };
             rows.filter(|&i| mates.of(i).all(|j| dof[j] == 0))
         })
         .collect();

@@ -240,7 +240,14 @@ pub fn blend(
     guided: bool,
     clamp_radius: Option<usize>,
 ) -> Result<Image> {
-    blend_metered(d, band_weights, domain, guided, clamp_radius, &Meter::default())
+    blend_metered(
+        d,
+        band_weights,
+        domain,
+        guided,
+        clamp_radius,
+        &Meter::default(),
+    )
 }
 
 /// [`blend`] that ends with `Err(Cancelled)` between its passes (and skips the rows of its
