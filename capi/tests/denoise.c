@@ -110,9 +110,9 @@ int main(int argc, char **argv) {
 
     float *out = malloc(w * h * 3 * sizeof(float));
     for (size_t i = 0; i < w * h; i++) memcpy(out + 3 * i, out_rgba + 4 * i, 3 * sizeof(float));
-    FILE *f = fopen(argv[6], "wb");
+    FILE *f = fopen(argv[7], "wb");
     if (!f || fwrite(out, sizeof(float), w * h * 3, f) != w * h * 3) {
-        fprintf(stderr, "cannot write %s\n", argv[6]);
+        fprintf(stderr, "cannot write %s\n", argv[7]);
         return 2;
     }
     fclose(f);
