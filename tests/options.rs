@@ -114,6 +114,7 @@ fn a_cancel_inside_a_stage_stops_its_rows() {
         ("full", "noise"),
         ("full", "blend"),
         ("full", "reliability"),
+        ("full", "atrous"),
         (PYRAMID_BLEND_ONLY, "pyramid"),
     ];
     for (pipeline, stage) in cases {

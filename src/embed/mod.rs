@@ -105,10 +105,9 @@ impl<'a> Inputs<'a> {
         }
         let [name_a, name_b] = NoiseInputs::HALVES;
         set.noise.halves = match &self.halves {
-            [Some(a), Some(b)] => Some([
-                noise_image(name_a, a, dims)?,
-                noise_image(name_b, b, dims)?,
-            ]),
+            [Some(a), Some(b)] => {
+                Some([noise_image(name_a, a, dims)?, noise_image(name_b, b, dims)?])
+            }
             [None, None] => None,
             [a, _] => {
                 let (missing, have) = if a.is_some() {
