@@ -186,7 +186,7 @@ fn denoise_frame(
     let options = DenoiseOptions {
         max_memory: Some(args.run.memory_limit()),
         progress: Some(meter.pipeline_progress()),
-        cancel: Some(super::cancel_token()),
+        cancel: Some(super::signals::cancel_token()),
         ..ctx.denoise_options(false)
     };
     let (out, report) = pipeline.run(&mut buffers, &options)?;

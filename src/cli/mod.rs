@@ -2,8 +2,8 @@
 //! error. `denoise` runs the command over one render set (`frame`) or many (`batch`, which hands
 //! each to `frame`); `report` says what a frame did, as text or JSON; `meter` shows progress and
 //! filters what is said by verbosity; `studies` holds ablate, sweep, eval and the pipeline list;
-//! `stdout` prints without panicking. Uses run one way: denoise → batch → frame → report, and each
-//! of them → args, meter, stdout.
+//! `stdout` prints without panicking; `signals` turns Ctrl-C into the run's cancel. Uses run one
+//! way: denoise → batch → frame → report, and each of them → args, meter, signals, stdout.
 
 mod args;
 pub mod batch;
@@ -14,6 +14,7 @@ mod hints;
 pub mod meter;
 mod pattern;
 mod report;
+mod signals;
 mod stdout;
 mod studies;
 
@@ -24,35 +25,12 @@ pub use args::{
 };
 pub use report::{FrameReport, Outcome};
 
-use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
-use std::time::Duration;
-
 use crate::error::Error;
-use crate::io;
-use crate::options::CancelToken;
-
-/// The invocation's cancel: every frame `gsid denoise` runs (a batch, a `--temporal` shot) holds
-/// it, and the first SIGINT or SIGTERM sets it.
-static CANCEL: std::sync::OnceLock<CancelToken> = std::sync::OnceLock::new();
-/// Whether a run holding [`CANCEL`] has started: until then a signal ends the process at once.
-static CANCELLABLE: AtomicBool = AtomicBool::new(false);
-/// The signal that asked the run to stop (0: none).
-static SIGNALLED: AtomicI32 = AtomicI32::new(0);
-/// How long a cancelled run may take to end before the signal handler ends the process itself.
-const CANCEL_GRACE: Duration = Duration::from_secs(2);
-
-/// The token a run of this invocation stops on: from now on a signal cancels the run rather than
-/// ending the process, so the run ends through its own error path (outputs dropped, one line).
-pub(crate) fn cancel_token() -> CancelToken {
-    let token = CANCEL.get_or_init(CancelToken::new).clone();
-    CANCELLABLE.store(true, Ordering::SeqCst);
-    token
-}
 
 /// Runs the CLI and returns the process exit code.
 pub fn main() -> i32 {
     keep_freed_memory();
-    remove_outputs_on_signal();
+    signals::remove_outputs_on_signal();
     let argv: Vec<std::ffi::OsString> = std::env::args_os().collect();
     let parsed = Cli::try_parse_from(&argv);
     if let Some(hint) = hints::quality_flag(&argv, parsed.is_err()) {
@@ -81,48 +59,13 @@ pub fn main() -> i32 {
         Err(Error::Cancelled) => {
             // Only a signal cancels the command line's runs; the shell's code for it.
             crate::progress::say_err!("gsid: cancelled");
-            match SIGNALLED.load(Ordering::SeqCst) {
-                0 => Error::Cancelled.exit_code(),
-                signal => 128 + signal,
-            }
+            signals::cancelled_exit_code()
         }
         Err(e) => {
             crate::progress::say_err!("gsid: error: {e}");
             e.exit_code()
         }
     }
-}
-
-/// On SIGINT or SIGTERM during a denoise run: cancels the run ([`cancel_token`]), which ends with
-/// `Error::Cancelled`, its pending outputs dropped, and exits 128 + the signal's number (130, 143),
-/// as a shell reports a process it stopped. Before such a run, in the commands that hold no token
-/// (`render`, `ablate`, `sweep`), on a second signal, or when the cancelled run has not ended within
-/// [`CANCEL_GRACE`]: removes the temporary files and folders of outputs not yet committed and exits
-/// at once with that code.
-fn remove_outputs_on_signal() {
-    use signal_hook::consts::{SIGINT, SIGTERM};
-    // Without the handler (it cannot be installed) a signal still ends the run, leaving its temp files.
-    let Ok(mut signals) = signal_hook::iterator::Signals::new([SIGINT, SIGTERM]) else {
-        return;
-    };
-    std::thread::spawn(move || {
-        let Some(signal) = signals.forever().next() else {
-            return;
-        };
-        SIGNALLED.store(signal, Ordering::SeqCst);
-        if CANCELLABLE.load(Ordering::SeqCst) {
-            CANCEL.get_or_init(CancelToken::new).cancel();
-            let waited = std::time::Instant::now();
-            while waited.elapsed() < CANCEL_GRACE {
-                if signals.pending().next().is_some() {
-                    break;
-                }
-                std::thread::sleep(Duration::from_millis(20));
-            }
-        }
-        io::remove_pending_outputs();
-        std::process::exit(128 + signal);
-    });
 }
 
 /// Keeps the memory a run frees for its later buffers, instead of handing it back to the kernel.
