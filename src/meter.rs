@@ -126,6 +126,16 @@ impl Meter {
         }
     }
 
+    /// One more of a stage's short passes is done (those with no row loop worth telling): the
+    /// fraction moves as for a whole pass, then `Err(Cancelled)` once the run was asked to stop.
+    pub fn step(&self) -> Result<()> {
+        if self.0.is_some() {
+            self.pass(1);
+            self.rows(1);
+        }
+        self.check()
+    }
+
     /// The end of the run: fraction 1, stage `done`.
     pub fn finish(&self) {
         let Some(m) = &self.0 else { return };

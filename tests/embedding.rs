@@ -37,15 +37,18 @@ fn raw(image: &Image, path: &Path) {
     std::fs::write(path, bytes).unwrap();
 }
 
-/// The CLI's result on the fixture's colour, albedo and normal only (what the C test hands over).
-fn cli_on_three_buffers(dir: &Path) -> Image {
+/// The CLI's result on the fixture's colour, albedo, normal and variance only (what the C test
+/// hands over).
+fn cli_on_four_buffers(dir: &Path) -> Image {
     let set = io::load_render_set(&root().join(FIXTURE)).unwrap().set;
     let albedo = set.features.get(gsid::Feature::Albedo).unwrap();
     let normal = set.features.get(gsid::Feature::Normal).unwrap();
+    let variance = set.noise.variance.as_ref().unwrap();
     for (name, img) in [
         ("color", &set.color),
         ("albedo", albedo),
         ("normal", normal),
+        ("variance", variance),
     ] {
         io::write_exr(&dir.join(format!("{name}.exr")), img).unwrap();
         raw(img, &dir.join(format!("{name}.f32")));
@@ -60,6 +63,8 @@ fn cli_on_three_buffers(dir: &Path) -> Image {
         &p("albedo.exr"),
         "--normal",
         &p("normal.exr"),
+        "--variance",
+        &p("variance.exr"),
         "-q",
         "-o",
         &p("cli.exr"),
@@ -86,7 +91,7 @@ fn the_c_api_gives_the_clis_pixels_and_codes_for_bad_arguments() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let want = cli_on_three_buffers(dir.path());
+    let want = cli_on_four_buffers(dir.path());
     let exe = dir.path().join("denoise");
     let build = Command::new("cc")
         .args(["-std=c99", "-Wall", "-Wextra", "-Werror", "-O1", "-I"])
@@ -105,7 +110,10 @@ fn the_c_api_gives_the_clis_pixels_and_codes_for_bad_arguments() {
     let (w, h) = want.dims();
     let run = Command::new(&exe)
         .args([w.to_string(), h.to_string()])
-        .args(["color", "albedo", "normal", "out"].map(|n| dir.path().join(format!("{n}.f32"))))
+        .args(
+            ["color", "albedo", "normal", "variance", "out"]
+                .map(|n| dir.path().join(format!("{n}.f32"))),
+        )
         .output()
         .unwrap();
     assert!(
@@ -182,5 +190,49 @@ fn the_committed_header_is_cbindgens_output() {
     assert!(
         std::fs::read_to_string(&made).unwrap() == committed,
         "capi/include/gsid.h is stale: regenerate it with the command in capi/cbindgen.toml"
+    );
+}
+
+/// Without cbindgen (CI): every function, struct, enum and type the C API exports is declared in
+/// the committed header, so a new entry point cannot ship without regenerating it. Signatures and
+/// comments are compared only by [`the_committed_header_is_cbindgens_output`].
+#[test]
+fn the_committed_header_declares_every_export() {
+    let src = std::fs::read_to_string(root().join("capi/src/lib.rs")).unwrap();
+    let header = std::fs::read_to_string(root().join("capi/include/gsid.h")).unwrap();
+    let exports: Vec<&str> = src
+        .lines()
+        .filter_map(|line| {
+            let line = line.trim_start();
+            [
+                "pub unsafe extern \"C\" fn ",
+                "pub extern \"C\" fn ",
+                "pub struct ",
+                "pub enum ",
+                "pub type ",
+            ]
+            .iter()
+            .find_map(|p| line.strip_prefix(p))
+        })
+        .map(|rest| {
+            rest.split(|c: char| !c.is_alphanumeric() && c != '_')
+                .next()
+                .unwrap()
+        })
+        .collect();
+    assert!(exports.contains(&"gsid_denoise"), "{exports:?}");
+    // Every word of the header's code, its comments left out.
+    let declared: std::collections::HashSet<&str> = header
+        .lines()
+        .filter(|line| !line.trim_start().starts_with("//"))
+        .flat_map(|line| line.split(|c: char| !c.is_alphanumeric() && c != '_'))
+        .collect();
+    let missing: Vec<&&str> = exports
+        .iter()
+        .filter(|name| !declared.contains(**name))
+        .collect();
+    assert!(
+        missing.is_empty(),
+        "capi/include/gsid.h does not declare {missing:?}: regenerate it with the command in capi/cbindgen.toml"
     );
 }

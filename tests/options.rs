@@ -91,11 +91,38 @@ fn the_heavy_stages_tell_progress_from_within() {
     assert!(seen.windows(2).all(|w| w[0].0 <= w[1].0), "{seen:?}");
 }
 
+/// A pyramid with no sub-stages: its only rows told are those of the blend of its levels.
+const PYRAMID_BLEND_ONLY: &str = r#"
+name = "pyramid-blend"
+[[stage]]
+kind = "pyramid"
+levels = 2
+domain = "log"
+guided = true
+clamp_radius = 1
+"#;
+
 #[test]
 fn a_cancel_inside_a_stage_stops_its_rows() {
-    // One thread: once the walks see the cancel, no further row is walked or told.
-    for (pipeline, stage) in [("gsid", "gsid"), ("full", "prefilter"), ("full", "regress")] {
-        let pipeline = PipelineSpec::builtin(pipeline).unwrap().build().unwrap();
+    // One thread: once a row loop sees the cancel, no further row is done or told; a stage of
+    // short passes stops at the next one.
+    let cases = [
+        ("gsid", "gsid"),
+        ("full", "prefilter"),
+        ("full", "regress"),
+        // The surface-mates' rows (`window_bits`), the first rows of both.
+        ("full", "noise"),
+        ("full", "blend"),
+        ("full", "reliability"),
+        ("full", "atrous"),
+        (PYRAMID_BLEND_ONLY, "pyramid"),
+    ];
+    for (pipeline, stage) in cases {
+        let spec = match PipelineSpec::builtin(pipeline) {
+            Ok(spec) => spec,
+            Err(_) => PipelineSpec::parse(pipeline, "test").unwrap(),
+        };
+        let pipeline = spec.build().unwrap();
         let cancel = CancelToken::new();
         let trigger = cancel.clone();
         let start = pipeline

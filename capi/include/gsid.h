@@ -72,6 +72,15 @@ typedef struct GsidImageMut {
   ptrdiff_t pixel_stride;
 } GsidImageMut;
 
+// A buffer the command line reads, by the name it reads it under: `albedo`, `normal`, `depth`,
+// `material`, `shadow` (features), `variance` (the renderer's variance of the pixel mean, 3
+// channels) or `color_a` and `color_b` (the colour of two independent halves of the samples, 3
+// channels each, given together). For [`gsid_denoise_buffers`].
+typedef struct GsidBuffer {
+  const char *name;
+  struct GsidImage image;
+} GsidBuffer;
+
 #ifdef __cplusplus
 extern "C" {
 #endif // __cplusplus
@@ -130,6 +139,22 @@ enum GsidStatus gsid_denoise(const struct GsidPipeline *pipeline,
                              const struct GsidImage *depth,
                              const struct GsidImageMut *output,
                              const struct GsidOptions *options);
+
+// [`gsid_denoise`] with any of the buffers the command line reads: `color` (3 channels) and
+// `count` named buffers ([`GsidBuffer`]; `buffers` may be null when `count` is 0), all of one
+// size, into `output` (3 channels of that size), written only when the run succeeds. An unknown
+// name, a buffer of the wrong shape or one half without the other is `GSID_STATUS_INVALID`
+// with a message naming it. The same buffers, pipeline and seed give the command line's bits.
+//
+// # Safety
+// As [`gsid_denoise`]; `buffers` points at `count` readable [`GsidBuffer`]s whose names are
+// NUL-terminated strings.
+enum GsidStatus gsid_denoise_buffers(const struct GsidPipeline *pipeline,
+                                     const struct GsidImage *color,
+                                     const struct GsidBuffer *buffers,
+                                     size_t count,
+                                     const struct GsidImageMut *output,
+                                     const struct GsidOptions *options);
 
 #ifdef __cplusplus
 }  // extern "C"

@@ -85,6 +85,17 @@ pub struct GsidOptions {
     pub cancel: *const i32,
 }
 
+/// A buffer the command line reads, by the name it reads it under: `albedo`, `normal`, `depth`,
+/// `material`, `shadow` (features), `variance` (the renderer's variance of the pixel mean, 3
+/// channels) or `color_a` and `color_b` (the colour of two independent halves of the samples, 3
+/// channels each, given together). For [`gsid_denoise_buffers`].
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct GsidBuffer {
+    pub name: *const c_char,
+    pub image: GsidImage,
+}
+
 /// A pipeline ready to run: made by [`gsid_pipeline_new`] or [`gsid_pipeline_from_toml`], freed
 /// by [`gsid_pipeline_free`]. One pipeline may run on several threads at once.
 pub struct GsidPipeline {
@@ -326,15 +337,73 @@ pub unsafe extern "C" fn gsid_denoise(
                 inputs = inputs.with(feature, v);
             }
         }
-        let Some(out) = (unsafe { output.as_ref() }) else {
-            return Err(Error::buffer("output", "is a null pointer"));
-        };
-        let shape = (out.width, out.height, out.channels);
-        let strides = strides(out.channels, out.width, out.row_stride, out.pixel_stride);
-        let mut out = unsafe { ImageViewMut::from_raw(out.data, shape, strides) }
-            .map_err(|msg| Error::buffer("output", msg))?;
-        run(&pipeline.built, &inputs, &mut out, &options)
+        unsafe { run_into(&pipeline.built, &inputs, output, &options) }
     })
+}
+
+/// [`gsid_denoise`] with any of the buffers the command line reads: `color` (3 channels) and
+/// `count` named buffers ([`GsidBuffer`]; `buffers` may be null when `count` is 0), all of one
+/// size, into `output` (3 channels of that size), written only when the run succeeds. An unknown
+/// name, a buffer of the wrong shape or one half without the other is `GSID_STATUS_INVALID`
+/// with a message naming it. The same buffers, pipeline and seed give the command line's bits.
+///
+/// # Safety
+/// As [`gsid_denoise`]; `buffers` points at `count` readable [`GsidBuffer`]s whose names are
+/// NUL-terminated strings.
+#[no_mangle]
+pub unsafe extern "C" fn gsid_denoise_buffers(
+    pipeline: *const GsidPipeline,
+    color: *const GsidImage,
+    buffers: *const GsidBuffer,
+    count: usize,
+    output: *const GsidImageMut,
+    options: *const GsidOptions,
+) -> GsidStatus {
+    guard(|| {
+        // SAFETY: the caller's promise, for every pointer below.
+        let Some(pipeline) = (unsafe { pipeline.as_ref() }) else {
+            return Err(invalid("pipeline", "is a null pointer"));
+        };
+        let options = unsafe { options.as_ref() }
+            .copied()
+            .unwrap_or_else(|| gsid_options_default());
+        let color = unsafe { view(color, "color") }?
+            .ok_or_else(|| Error::buffer("color", "is a null pointer"))?;
+        let buffers: &[GsidBuffer] = match (buffers.is_null(), count) {
+            (_, 0) => &[],
+            (true, _) => return Err(invalid("buffers", "is a null pointer")),
+            (false, n) => unsafe { std::slice::from_raw_parts(buffers, n) },
+        };
+        let mut inputs = Inputs::new(color);
+        for buffer in buffers {
+            let name = unsafe { text(buffer.name, "buffer name") }?;
+            let v = unsafe { view(&buffer.image, name) }?.expect("a reference is not null");
+            inputs = inputs.with_named(name, v)?;
+        }
+        unsafe { run_into(&pipeline.built, &inputs, output, &options) }
+    })
+}
+
+/// [`run`] into the caller's `output`.
+///
+/// # Safety
+/// `output` is null or describes memory writable for the call, which no one reads meanwhile.
+unsafe fn run_into(
+    pipeline: &Pipeline,
+    inputs: &Inputs,
+    output: *const GsidImageMut,
+    options: &GsidOptions,
+) -> Result<(), Error> {
+    // SAFETY: the caller's promise.
+    let Some(out) = (unsafe { output.as_ref() }) else {
+        return Err(Error::buffer("output", "is a null pointer"));
+    };
+    let shape = (out.width, out.height, out.channels);
+    let strides = strides(out.channels, out.width, out.row_stride, out.pixel_stride);
+    // SAFETY: the caller vouches for the samples the strides reach.
+    let mut out = unsafe { ImageViewMut::from_raw(out.data, shape, strides) }
+        .map_err(|msg| Error::buffer("output", msg))?;
+    run(pipeline, inputs, &mut out, options)
 }
 
 /// The run on a thread of its own, the caller's thread passing progress on and reading the

@@ -1,9 +1,10 @@
-/* The C API from C: denoises a frame handed over as raw float files, through an RGBA framebuffer
- * stored bottom-up (negative row stride), and writes the result as packed RGB floats; then checks
- * that bad arguments come back as error codes with a message, and that a cancelled run leaves the
- * output alone. tests/embedding.rs builds and runs it and compares the pixels with the CLI's.
+/* The C API from C: denoises a frame handed over as raw float files (the colour through an RGBA
+ * framebuffer stored bottom-up, a negative row stride; albedo, normal and the renderer's variance
+ * as named buffers), and writes the result as packed RGB floats; then checks that bad arguments
+ * come back as error codes with a message, and that a cancelled run leaves the output alone.
+ * tests/embedding.rs builds and runs it and compares the pixels with the CLI's.
  *
- *   denoise W H color.f32 albedo.f32 normal.f32 out.f32
+ *   denoise W H color.f32 albedo.f32 normal.f32 variance.f32 out.f32
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -50,14 +51,15 @@ static bool on_progress(void *user, float fraction, const char *stage) {
 }
 
 int main(int argc, char **argv) {
-    if (argc != 7) {
-        fprintf(stderr, "usage: denoise W H color.f32 albedo.f32 normal.f32 out.f32\n");
+    if (argc != 8) {
+        fprintf(stderr, "usage: denoise W H color.f32 albedo.f32 normal.f32 variance.f32 out.f32\n");
         return 2;
     }
     size_t w = strtoul(argv[1], NULL, 10), h = strtoul(argv[2], NULL, 10);
     float *color = read_floats(argv[3], w * h * 3);
     float *albedo = read_floats(argv[4], w * h * 3);
     float *normal = read_floats(argv[5], w * h * 3);
+    float *variance = read_floats(argv[6], w * h * 3);
 
     /* The colour as a renderer's RGBA framebuffer, rows stored bottom-up. */
     float *rgba = malloc(w * h * 4 * sizeof(float));
@@ -70,6 +72,11 @@ int main(int argc, char **argv) {
     GsidImage color_img = {rgba + (h - 1) * w * 4, w, h, 3, -(ptrdiff_t)(w * 4), 4};
     GsidImage albedo_img = {albedo, w, h, 3, 0, 0};
     GsidImage normal_img = {normal, w, h, 3, 0, 0};
+    GsidBuffer named[] = {
+        {"albedo", albedo_img},
+        {"normal", normal_img},
+        {"variance", {variance, w, h, 3, 0, 0}},
+    };
 
     /* The output into another RGBA framebuffer, whose alpha must survive. */
     float *out_rgba = malloc(w * h * 4 * sizeof(float));
@@ -89,13 +96,13 @@ int main(int argc, char **argv) {
     CHECK(strcmp(gsid_last_error(), "cancelled") == 0, "cancelled run: '%s'", gsid_last_error());
     CHECK(out_rgba[0] == -1.0f && out_rgba[4 * w * h - 1] == -1.0f, "cancelled run wrote output");
 
-    /* The run itself. */
+    /* The run itself, with the variance as an extra buffer. */
     struct Seen told = {0, 0.0f, 0};
     options = gsid_options_default();
     options.progress = on_progress;
     options.user = &told;
-    status = gsid_denoise(pipeline, &color_img, &albedo_img, &normal_img, NULL, &out_img, &options);
-    CHECK(status == GSID_STATUS_OK, "gsid_denoise: %s", gsid_last_error());
+    status = gsid_denoise_buffers(pipeline, &color_img, named, 3, &out_img, &options);
+    CHECK(status == GSID_STATUS_OK, "gsid_denoise_buffers: %s", gsid_last_error());
     CHECK(strcmp(gsid_last_error(), "") == 0, "message after success: '%s'", gsid_last_error());
     CHECK(told.calls >= 1 && told.backwards == 0 && told.last == 1.0f,
           "progress: %d calls, %d out of order, last %g", told.calls, told.backwards, told.last);
@@ -103,12 +110,24 @@ int main(int argc, char **argv) {
 
     float *out = malloc(w * h * 3 * sizeof(float));
     for (size_t i = 0; i < w * h; i++) memcpy(out + 3 * i, out_rgba + 4 * i, 3 * sizeof(float));
-    FILE *f = fopen(argv[6], "wb");
+    FILE *f = fopen(argv[7], "wb");
     if (!f || fwrite(out, sizeof(float), w * h * 3, f) != w * h * 3) {
-        fprintf(stderr, "cannot write %s\n", argv[6]);
+        fprintf(stderr, "cannot write %s\n", argv[7]);
         return 2;
     }
     fclose(f);
+
+    /* Albedo and normal named give gsid_denoise's bits; the variance changes them. */
+    float *plain = malloc(w * h * 3 * sizeof(float));
+    float *named_plain = malloc(w * h * 3 * sizeof(float));
+    GsidImageMut plain_img = {plain, w, h, 3, 0, 0};
+    GsidImageMut named_plain_img = {named_plain, w, h, 3, 0, 0};
+    status = gsid_denoise(pipeline, &color_img, &albedo_img, &normal_img, NULL, &plain_img, NULL);
+    CHECK(status == GSID_STATUS_OK, "gsid_denoise: %s", gsid_last_error());
+    status = gsid_denoise_buffers(pipeline, &color_img, named, 2, &named_plain_img, NULL);
+    CHECK(status == GSID_STATUS_OK, "gsid_denoise_buffers: %s", gsid_last_error());
+    CHECK(memcmp(plain, named_plain, w * h * 3 * sizeof(float)) == 0, "named buffers differ");
+    CHECK(memcmp(plain, out, w * h * 3 * sizeof(float)) != 0, "the variance was not read");
 
     /* Bad arguments: a code and a message naming the culprit, never a crash. */
     GsidPipeline *none = NULL;
@@ -144,6 +163,21 @@ int main(int argc, char **argv) {
     status = gsid_denoise(NULL, &color_img, NULL, NULL, NULL, &out_img, NULL);
     CHECK(status == GSID_STATUS_INVALID, "null pipeline: status %d", (int)status);
 
+    GsidBuffer shadow_rgb = {"shadow", albedo_img};
+    status = gsid_denoise_buffers(pipeline, &color_img, &shadow_rgb, 1, &out_img, NULL);
+    CHECK(status == GSID_STATUS_INVALID, "3-channel shadow: status %d", (int)status);
+    CHECK(strstr(gsid_last_error(), "shadow") != NULL, "message: '%s'", gsid_last_error());
+
+    GsidBuffer unknown = {"albdo", albedo_img};
+    status = gsid_denoise_buffers(pipeline, &color_img, &unknown, 1, &out_img, NULL);
+    CHECK(status == GSID_STATUS_INVALID, "unknown buffer: status %d", (int)status);
+    CHECK(strstr(gsid_last_error(), "albdo") != NULL, "message: '%s'", gsid_last_error());
+
+    GsidBuffer half = {"color_a", {color, w, h, 3, 0, 0}};
+    status = gsid_denoise_buffers(pipeline, &color_img, &half, 1, &out_img, NULL);
+    CHECK(status == GSID_STATUS_INVALID, "one half: status %d", (int)status);
+    CHECK(strstr(gsid_last_error(), "color_b") != NULL, "message: '%s'", gsid_last_error());
+
     GsidOptions many = gsid_options_default();
     many.threads = 5000;
     status = gsid_denoise(pipeline, &color_img, NULL, NULL, NULL, &out_img, &many);
@@ -152,7 +186,8 @@ int main(int argc, char **argv) {
 
     gsid_pipeline_free(pipeline);
     gsid_pipeline_free(NULL);
-    free(color), free(albedo), free(normal), free(rgba), free(out_rgba), free(out);
+    free(color), free(albedo), free(normal), free(variance), free(rgba), free(out_rgba), free(out);
+    free(plain), free(named_plain);
     if (failures) {
         fprintf(stderr, "%d checks failed\n", failures);
         return 1;

@@ -31,6 +31,11 @@ def denoise(
     normal: Optional[np.ndarray] = None,
     depth: Optional[np.ndarray] = None,
     *,
+    material: Optional[np.ndarray] = None,
+    shadow: Optional[np.ndarray] = None,
+    variance: Optional[np.ndarray] = None,
+    color_a: Optional[np.ndarray] = None,
+    color_b: Optional[np.ndarray] = None,
     pipeline: str = "full",
     seed: int = 0,
     threads: Optional[int] = None,
@@ -44,7 +49,13 @@ def denoise(
     albedo:   surface colour without lighting, (H, W, 3) or (H, W, 4), in 0..1.
     normal:   shading normals, unit xyz in any space, (H, W, 3) or (H, W, 4).
     depth:    distance to the first hit, (H, W) or (H, W, 1).
-              Any buffer may be left out (its features are off). Every array may have any strides
+    material: material weights (diffuse, reflective, refractive), (H, W, 3).
+    shadow:   shadow or visibility, (H, W) or (H, W, 1).
+    variance: the renderer's variance of the pixel mean, (H, W, 3): the noise is then not estimated.
+    color_a, color_b: the colour of two independent halves of the samples, (H, W, 3) each, given
+              together: the noise is measured from their difference.
+              Any buffer may be left out (its features are off). ``gsid.denoise(**buffers)`` takes
+              what :func:`read_render` returns, the command line's pixels for that set. Every array may have any strides
               (``arr[:, ::-1]``, a channel slice of a larger array): it is read in place, not
               copied in Python. All must be float32 and of one height and width.
     pipeline: a built-in pipeline (``gsid.pipelines()``: full, balanced, fast, ...), a pipeline
@@ -68,6 +79,11 @@ def denoise(
         albedo,
         normal,
         depth,
+        material=material,
+        shadow=shadow,
+        variance=variance,
+        color_a=color_a,
+        color_b=color_b,
         pipeline=pipeline,
         seed=seed,
         threads=threads,
@@ -89,8 +105,9 @@ def read_render(
 
     Returns ``{"color": (H, W, 3), "albedo": ..., "normal": ..., "depth": (H, W), ...}``, float32,
     only the buffers found; a normal stored in 0..1 comes back remapped to -1..1, as the command
-    line reads it. Pass them on as ``gsid.denoise(**{k: v for k, v in b.items() if k in
-    ("color", "albedo", "normal", "depth")})``.
+    line reads it; also ``material``, ``shadow``, ``variance`` and ``color_a``/``color_b`` when
+    the set has them. ``gsid.denoise(**gsid.read_render(path))`` denoises them as
+    ``gsid denoise path`` does.
     """
     return _gsid.read_render(path, None if maps is None else dict(maps))
 

@@ -150,7 +150,7 @@ fn pipeline_of(pipeline: &str, set: &[String]) -> PyResult<gsid::Pipeline> {
 }
 
 #[pyfunction]
-#[pyo3(signature = (color, albedo=None, normal=None, depth=None, *, pipeline="full", seed=0, threads=None, progress=None, cancel=None, set=None))]
+#[pyo3(signature = (color, albedo=None, normal=None, depth=None, *, material=None, shadow=None, variance=None, color_a=None, color_b=None, pipeline="full", seed=0, threads=None, progress=None, cancel=None, set=None))]
 #[allow(clippy::too_many_arguments)]
 fn denoise<'py>(
     py: Python<'py>,
@@ -158,6 +158,11 @@ fn denoise<'py>(
     albedo: Option<&Bound<'py, PyAny>>,
     normal: Option<&Bound<'py, PyAny>>,
     depth: Option<&Bound<'py, PyAny>>,
+    material: Option<&Bound<'py, PyAny>>,
+    shadow: Option<&Bound<'py, PyAny>>,
+    variance: Option<&Bound<'py, PyAny>>,
+    color_a: Option<&Bound<'py, PyAny>>,
+    color_b: Option<&Bound<'py, PyAny>>,
     pipeline: &str,
     seed: u64,
     threads: Option<usize>,
@@ -167,19 +172,26 @@ fn denoise<'py>(
 ) -> PyResult<Bound<'py, PyAny>> {
     let pipeline = pipeline_of(pipeline, set.as_deref().unwrap_or_default())?;
     let color = borrow("color", color, 3)?;
+    // Every buffer the command line reads, by the name it reads it under.
     let mut features = Vec::new();
-    for (feature, obj) in [
-        (Feature::Albedo, albedo),
-        (Feature::Normal, normal),
-        (Feature::Depth, depth),
+    for (name, obj) in [
+        ("albedo", albedo),
+        ("normal", normal),
+        ("depth", depth),
+        ("material", material),
+        ("shadow", shadow),
+        ("variance", variance),
+        ("color_a", color_a),
+        ("color_b", color_b),
     ] {
         if let Some(obj) = obj.filter(|o| !o.is_none()) {
-            features.push((feature, borrow(feature.name(), obj, feature.channels())?));
+            let channels = Feature::from_name(name).map_or(3, Feature::channels);
+            features.push((name, borrow(name, obj, channels)?));
         }
     }
     let mut inputs = Inputs::new(color.view("color")?);
-    for (feature, b) in &features {
-        inputs = inputs.with(*feature, b.view(feature.name())?);
+    for (name, b) in &features {
+        inputs = inputs.with_named(name, b.view(name)?).map_err(error)?;
     }
     let (w, h) = inputs.dims();
     let mut out = vec![0.0f32; w * h * 3];

@@ -60,6 +60,24 @@ def test_same_pixels_as_the_cli(tmp_path):
     assert np.array_equal(mine.view(np.uint32), cli.view(np.uint32))
 
 
+def test_every_buffer_read_render_returns_is_denoised_as_the_cli_does(tmp_path):
+    exe = gsid_binary()
+    if not exe:
+        pytest.skip("no gsid binary (GSID_BIN or gsid on PATH)")
+    out = tmp_path / "cli.exr"
+    subprocess.run([exe, "denoise", str(FIXTURE), "-q", "-o", str(out)], check=True)
+    cli = gsid.read_render(out)["color"]
+
+    buffers = gsid.read_render(FIXTURE)
+    extra = {"material", "shadow", "variance", "color_a", "color_b"}
+    assert extra <= buffers.keys(), buffers.keys()
+    mine = gsid.denoise(**buffers)
+    assert np.array_equal(mine.view(np.uint32), cli.view(np.uint32))
+    # The extra buffers are read: without them the pixels differ.
+    plain = gsid.denoise(**{k: v for k, v in buffers.items() if k not in extra})
+    assert not np.array_equal(plain.view(np.uint32), cli.view(np.uint32))
+
+
 def test_non_contiguous_views_read_in_place_give_the_same_bits():
     color, albedo, normal, depth = synthetic(48, 64)
     flipped = [a[:, ::-1] for a in (color, albedo, normal, depth)]
@@ -93,6 +111,10 @@ def test_non_contiguous_views_read_in_place_give_the_same_bits():
         (lambda c, a, n, d: ((c,), {"set": ["gsid.walsk=3"]}), "walsk"),
         (lambda c, a, n, d: ((c,), {"threads": 0}), "threads"),
         (lambda c, a, n, d: (([[0.0]],), {}), "buffer `color`: is a list"),
+        (lambda c, a, n, d: ((c,), {"shadow": a}), "buffer `shadow`: has shape (48, 64, 3)"),
+        (lambda c, a, n, d: ((c,), {"material": a[:40]}), "buffer `material`: is 64x40"),
+        (lambda c, a, n, d: ((c,), {"variance": d}), "buffer `variance`: has shape (48, 64)"),
+        (lambda c, a, n, d: ((c,), {"color_a": c}), "buffer `color_b`: is required with color_a"),
     ],
 )
 def test_bad_input_raises_gsid_error_naming_the_culprit(make, culprit):

@@ -328,6 +328,11 @@ impl Batch {
             meter.end_frame(end_of(&result));
             let outcome = match result {
                 Ok(outcome) => outcome,
+                // A signal stops the whole batch, `--keep-going` or not: no summary, one line.
+                Err(Error::Cancelled) => {
+                    meter.finish();
+                    return Err(Error::Cancelled);
+                }
                 Err(e) => {
                     let e = Error::Frame {
                         frame: label.clone(),

@@ -13,6 +13,8 @@ use crate::pipeline::Pipeline;
 use crate::run::RunContext;
 
 pub(super) fn denoise(args: &DenoiseArgs, verbosity: Verbosity) -> Result<()> {
+    // From here a signal cancels the run (every frame holds the token) instead of ending the process.
+    super::signals::cancel_token();
     let ctx = args.run.context(verbosity == Verbosity::Quiet)?;
     // Reading and writing run on the same pool as the pipeline, so `--threads` bounds the whole job.
     ctx.install(|| denoise_in_pool(args, &ctx, verbosity))

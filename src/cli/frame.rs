@@ -181,9 +181,12 @@ fn denoise_frame(
     let (width, height) = set.set.dims();
     let input = args.dir.as_ref().unwrap_or(&set.dir).display().to_string();
     let mut buffers = Buffers::from(set.set);
+    // The library's call, as a renderer makes it (`Pipeline::denoise_into` runs the same): Ctrl-C
+    // cancels it through the invocation's token.
     let options = DenoiseOptions {
         max_memory: Some(args.run.memory_limit()),
         progress: Some(meter.pipeline_progress()),
+        cancel: Some(super::signals::cancel_token()),
         ..ctx.denoise_options(false)
     };
     let (out, report) = pipeline.run(&mut buffers, &options)?;

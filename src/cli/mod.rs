@@ -2,8 +2,8 @@
 //! error. `denoise` runs the command over one render set (`frame`) or many (`batch`, which hands
 //! each to `frame`); `report` says what a frame did, as text or JSON; `meter` shows progress and
 //! filters what is said by verbosity; `studies` holds ablate, sweep, eval and the pipeline list;
-//! `stdout` prints without panicking. Uses run one way: denoise → batch → frame → report, and each
-//! of them → args, meter, stdout.
+//! `stdout` prints without panicking; `signals` turns Ctrl-C into the run's cancel. Uses run one
+//! way: denoise → batch → frame → report, and each of them → args, meter, signals, stdout.
 
 mod args;
 pub mod batch;
@@ -14,6 +14,7 @@ mod hints;
 pub mod meter;
 mod pattern;
 mod report;
+mod signals;
 mod stdout;
 mod studies;
 
@@ -25,12 +26,11 @@ pub use args::{
 pub use report::{FrameReport, Outcome};
 
 use crate::error::Error;
-use crate::io;
 
 /// Runs the CLI and returns the process exit code.
 pub fn main() -> i32 {
     keep_freed_memory();
-    remove_outputs_on_signal();
+    signals::remove_outputs_on_signal();
     let argv: Vec<std::ffi::OsString> = std::env::args_os().collect();
     let parsed = Cli::try_parse_from(&argv);
     if let Some(hint) = hints::quality_flag(&argv, parsed.is_err()) {
@@ -56,27 +56,16 @@ pub fn main() -> i32 {
     };
     match run(cli) {
         Ok(()) | Err(Error::StdoutClosed) => 0,
+        Err(Error::Cancelled) => {
+            // Only a signal cancels the command line's runs; the shell's code for it.
+            crate::progress::say_err!("gsid: cancelled");
+            signals::cancelled_exit_code()
+        }
         Err(e) => {
             crate::progress::say_err!("gsid: error: {e}");
             e.exit_code()
         }
     }
-}
-
-/// On SIGINT or SIGTERM: removes the temporary files and folders of outputs not yet committed,
-/// then exits 128 + the signal's number (130, 143), as a shell reports a process it stopped.
-fn remove_outputs_on_signal() {
-    use signal_hook::consts::{SIGINT, SIGTERM};
-    // Without the handler (it cannot be installed) a signal still ends the run, leaving its temp files.
-    let Ok(mut signals) = signal_hook::iterator::Signals::new([SIGINT, SIGTERM]) else {
-        return;
-    };
-    std::thread::spawn(move || {
-        if let Some(signal) = signals.forever().next() {
-            io::remove_pending_outputs();
-            std::process::exit(128 + signal);
-        }
-    });
 }
 
 /// Keeps the memory a run frees for its later buffers, instead of handing it back to the kernel.

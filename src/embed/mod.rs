@@ -11,6 +11,7 @@ pub mod watch;
 
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
+use crate::image::Image;
 use crate::options::DenoiseOptions;
 use crate::pipeline::{Pipeline, RunReport};
 use crate::render_set::{Feature, NoiseInputs, RenderSet};
@@ -24,6 +25,7 @@ pub struct Inputs<'a> {
     color: ImageView<'a>,
     features: Vec<(Feature, ImageView<'a>)>,
     variance: Option<ImageView<'a>>,
+    halves: [Option<ImageView<'a>>; 2],
 }
 
 impl<'a> Inputs<'a> {
@@ -32,7 +34,38 @@ impl<'a> Inputs<'a> {
             color,
             features: Vec::new(),
             variance: None,
+            halves: [None, None],
         }
+    }
+
+    /// Adds (or replaces) the buffer the command line reads under `name`: a feature (`albedo`,
+    /// `normal`, `depth`, `material`, `shadow`), `variance`, or a half-sample colour (`color_a`,
+    /// `color_b`, which come together). An unknown name is an error naming it.
+    pub fn with_named(self, name: &str, view: ImageView<'a>) -> Result<Self> {
+        if let Some(feature) = Feature::from_name(name) {
+            return Ok(self.with(feature, view));
+        }
+        if name == NoiseInputs::VARIANCE {
+            return Ok(self.with_variance(view));
+        }
+        match NoiseInputs::HALVES.iter().position(|&h| h == name) {
+            Some(k) => {
+                let mut inputs = self;
+                inputs.halves[k] = Some(view);
+                Ok(inputs)
+            }
+            None => Err(Error::buffer(
+                name,
+                "is not a buffer gsid reads (albedo, normal, depth, material, shadow, variance, color_a, color_b)",
+            )),
+        }
+    }
+
+    /// Adds the colour of two independent halves of the samples (3 channels each), from which
+    /// the noise is measured.
+    pub fn with_halves(mut self, a: ImageView<'a>, b: ImageView<'a>) -> Self {
+        self.halves = [Some(a), Some(b)];
+        self
     }
 
     /// Adds (or replaces) a feature buffer: 3 channels, or 1 for depth and shadow.
@@ -66,24 +99,47 @@ impl<'a> Inputs<'a> {
         for (feature, view) in &self.features {
             set = set.with(*feature, view.to_image(feature.name())?)?;
         }
+        let dims = set.dims();
         if let Some(view) = &self.variance {
-            let variance = view.to_image(NoiseInputs::VARIANCE)?;
-            let (w, h) = set.dims();
-            if variance.dims() != (w, h) || variance.channels() != 3 {
+            set.noise.variance = Some(noise_image(NoiseInputs::VARIANCE, view, dims)?);
+        }
+        let [name_a, name_b] = NoiseInputs::HALVES;
+        set.noise.halves = match &self.halves {
+            [Some(a), Some(b)] => {
+                Some([noise_image(name_a, a, dims)?, noise_image(name_b, b, dims)?])
+            }
+            [None, None] => None,
+            [a, _] => {
+                let (missing, have) = if a.is_some() {
+                    (name_b, name_a)
+                } else {
+                    (name_a, name_b)
+                };
                 return Err(Error::buffer(
-                    NoiseInputs::VARIANCE,
-                    format!(
-                        "is {}x{} with {} channels, expected {w}x{h} with 3",
-                        variance.width(),
-                        variance.height(),
-                        variance.channels()
-                    ),
+                    missing,
+                    format!("is required with {have}: the two half-sample colours come together"),
                 ));
             }
-            set.noise.variance = Some(variance);
-        }
+        };
         Ok(set)
     }
+}
+
+/// A noise buffer (`variance`, a half) copied from its view: 3 channels of the colour's size.
+fn noise_image(name: &str, view: &ImageView, (w, h): (usize, usize)) -> Result<Image> {
+    let img = view.to_image(name)?;
+    if img.dims() != (w, h) || img.channels() != 3 {
+        return Err(Error::buffer(
+            name,
+            format!(
+                "is {}x{} with {} channels, expected {w}x{h} with 3",
+                img.width(),
+                img.height(),
+                img.channels()
+            ),
+        ));
+    }
+    Ok(img)
 }
 
 impl Pipeline {

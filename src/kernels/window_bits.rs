@@ -11,6 +11,7 @@ use std::ops::Range;
 use rayon::prelude::*;
 
 use crate::image::par_vec;
+use crate::meter::Meter;
 
 /// Largest radius whose window's cells fit the bits of a `u64` (7×7).
 pub(crate) const MOST_RADIUS: usize = 3;
@@ -41,6 +42,20 @@ pub(crate) fn window_bits<T>(
     band: impl Fn(Range<usize>) -> T + Sync,
     forward: impl Fn(&T, usize, usize, u32, &mut [u64]) + Sync,
 ) -> Vec<u64> {
+    window_bits_metered(w, h, radius, centre, band, forward, &Meter::default())
+}
+
+/// [`window_bits`] that skips its remaining bands and rows once `meter` is cancelled (the bits are
+/// then unfinished, for the caller to throw away).
+pub(crate) fn window_bits_metered<T>(
+    w: usize,
+    h: usize,
+    radius: usize,
+    centre: bool,
+    band: impl Fn(Range<usize>) -> T + Sync,
+    forward: impl Fn(&T, usize, usize, u32, &mut [u64]) + Sync,
+    meter: &Meter,
+) -> Vec<u64> {
     assert!(
         radius <= MOST_RADIUS,
         "a window of radius {radius} has more cells than a u64 has bits"
@@ -57,11 +72,16 @@ pub(crate) fn window_bits<T>(
     let (ahead, behind) = (cells(true), cells(false));
     let row = w.max(1);
     let mut fwd = par_vec(0u64, w * h);
+    meter.pass(h);
     fwd.par_chunks_mut(row * BAND_ROWS)
         .enumerate()
         .for_each(|(b, out)| {
+            if meter.cancelled() {
+                return;
+            }
             let y0 = b * BAND_ROWS;
             let y1 = (y0 + BAND_ROWS).min(h);
+            meter.rows(y1 - y0);
             // The forward half looks down by at most `radius` rows.
             let data = band(y0..(y1 + radius).min(h));
             let base = y0 * w;
@@ -74,7 +94,12 @@ pub(crate) fn window_bits<T>(
             }
         });
     let mut bits = par_vec(0u64, w * h);
+    meter.pass(h);
     bits.par_chunks_mut(row).enumerate().for_each(|(y, bits)| {
+        if meter.cancelled() {
+            return;
+        }
+        meter.rows(1);
         bits.copy_from_slice(&fwd[y * w..y * w + bits.len()]);
         for &(bit, dx, dy) in &behind {
             let Some((lo, hi, j0)) = run(w, h, y, dx, dy) else {

@@ -188,8 +188,10 @@ impl Stage for AtrousStage {
                 scales.as_deref(),
             )?;
             let bands = |rows, pad| recipe.planes(rows, pad);
-            color = pass::pass(&color, &bands, mask.as_deref(), 1 << k, sigma);
+            color =
+                pass::pass_metered(&color, &bands, mask.as_deref(), (1 << k, sigma), &ctx.meter);
         }
+        ctx.meter.check()?;
         if let Some(a) = albedo {
             for (c, &a) in color.data_mut().iter_mut().zip(a.data()) {
                 *c *= a.max(0.0) + DEMODULATION_EPS;

@@ -20,6 +20,7 @@ use crate::features::{distance_row, FeaturePlanes};
 use crate::image::Image;
 use crate::kernels::fastmath::exp_neg_row;
 use crate::kernels::simd::{row_kernel, Kernel};
+use crate::meter::Meter;
 
 /// The features of image rows `rows` as planes padded by `pad` columns, and their depth weight, as
 /// [`crate::features::Recipe::planes`] makes them: a pass asks for one band (plus halo)
@@ -62,6 +63,43 @@ pub fn pass_with(
     step: usize,
     sigma: f32,
 ) -> Image {
+    pass_in(
+        kernel,
+        color,
+        features,
+        mask,
+        (step, sigma),
+        &Meter::default(),
+    )
+}
+
+/// [`pass`] that skips its remaining bands of rows once `meter` is cancelled (the image is then
+/// unfinished, for the caller to throw away), telling the rows done.
+pub fn pass_metered(
+    color: &Image,
+    features: &Bands,
+    mask: Option<&[bool]>,
+    (step, sigma): (usize, f32),
+    meter: &Meter,
+) -> Image {
+    pass_in(
+        Kernel::detect(),
+        color,
+        features,
+        mask,
+        (step, sigma),
+        meter,
+    )
+}
+
+fn pass_in(
+    kernel: Kernel,
+    color: &Image,
+    features: &Bands,
+    mask: Option<&[bool]>,
+    (step, sigma): (usize, f32),
+    meter: &Meter,
+) -> Image {
     let kernel = kernel.or_portable();
     let (w, h) = color.dims();
     let mut out = Image::new(w, h, 3);
@@ -70,12 +108,17 @@ pub fn pass_with(
     }
     let reach = 2 * step;
     let inv = 1.0 / (2.0 * sigma * sigma);
+    meter.pass(h);
     out.data_mut()
         .par_chunks_mut(3 * w * BAND_ROWS)
         .enumerate()
         .for_each(|(band, rows_out)| {
+            if meter.cancelled() {
+                return;
+            }
             let y_begin = band * BAND_ROWS;
             let y_end = (y_begin + BAND_ROWS).min(h);
+            meter.rows(y_end - y_begin);
             let rows = y_begin.saturating_sub(reach)..(y_end + reach).min(h);
             // Padded so every run is computed in whole groups of 8 (the extra results are dropped);
             // taps that leave the image are skipped, so no run reaches further than its width.

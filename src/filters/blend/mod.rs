@@ -22,7 +22,7 @@ use crate::buffers::{Buffers, COLOR};
 use crate::error::{Error, Result};
 use crate::filters::stage::{parse_params, Context, Stage, StageIo};
 
-pub use weights::keep_weights;
+pub use weights::{keep_weights, keep_weights_metered};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -96,22 +96,21 @@ impl Stage for BlendStage {
         vec![self.io.output.clone()]
     }
 
-    fn execute_impl(&self, buffers: &mut Buffers, _ctx: &mut Context) -> Result<u64> {
+    fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
         let (filtered, original, variance) = crate::filters::stage::filtered_original_noise(
             buffers,
             &self.io.input,
             &self.params.original,
             &self.params.noise,
         )?;
-        let keep = keep_weights(
+        let keep = keep_weights_metered(
             crate::kernels::simd::Kernel::detect(),
-            original,
-            filtered,
-            variance,
+            (original, filtered, variance),
             buffers.features(),
-            self.params.tolerance,
-            self.params.leak,
+            (self.params.tolerance, self.params.leak),
+            &ctx.meter,
         );
+        ctx.meter.check()?;
         let mut out = filtered.par_clone();
         for (i, px) in out.data_mut().chunks_exact_mut(3).enumerate() {
             let o = original.pixel(i);

@@ -10,6 +10,7 @@ use crate::image::{par_vec, Image};
 use crate::kernels::padded::{Margin, Padded};
 use crate::kernels::simd::{row_kernel, Kernel};
 use crate::kernels::trim;
+use crate::meter::Meter;
 use crate::render_set::FeatureSet;
 
 /// Per pixel, how much of `filtered` to keep over `color` (0..1): the Wiener weight
@@ -27,10 +28,29 @@ pub fn keep_weights(
     tolerance: f64,
     leak: f64,
 ) -> Vec<f32> {
+    let inputs = (color, filtered, variance);
+    keep_weights_metered(
+        kernel,
+        inputs,
+        features,
+        (tolerance, leak),
+        &Meter::default(),
+    )
+}
+
+/// [`keep_weights`] of (colour, filtered, variance) with (tolerance, leak), skipping its remaining
+/// rows once `meter` is cancelled (the weights are then unfinished, for the caller to throw away).
+pub fn keep_weights_metered(
+    kernel: Kernel,
+    (color, filtered, variance): (&Image, &Image, &Image),
+    features: &FeatureSet,
+    (tolerance, leak): (f64, f64),
+    meter: &Meter,
+) -> Vec<f32> {
     let (w, h) = color.dims();
     let surface = Surface::new(features, (w, h));
     let (c, f, v) = (color.data(), filtered.data(), variance.data());
-    let mates = surface.mates(w, h, BLEND_RADIUS as usize);
+    let mates = surface.mates_metered(w, h, BLEND_RADIUS as usize, meter);
     let diff2 = Padded::new((w, h), 1, trim::RADIUS as usize, Margin::Zeros, |i, _| {
         (0..3)
             .map(|k| {
@@ -43,9 +63,14 @@ pub fn keep_weights(
     // Row by row, the error estimates into a row of the thread's own, then the weights: no
     // whole-image table of them (16 bytes a pixel) when the blend is the run's last stage.
     let mut keep = par_vec(0.0f32, w * h);
+    meter.pass(h);
     keep.par_chunks_mut(w.max(1))
         .enumerate()
         .for_each_init(Vec::new, |row, (y, keep)| {
+            if meter.cancelled() {
+                return;
+            }
+            meter.rows(1);
             row.resize(keep.len(), (0.0, 0));
             let (diff2, mates, out) = (&diff2, &mates, row.as_mut_slice());
             row_kernel!(kernel, blend_error_row(diff2: &Padded, mates: &Mates, y: usize, out: &mut [(f64, usize)]));

@@ -187,6 +187,7 @@ pub fn run_gsid(
     let scales = params
         .scaling()
         .color_scales(buffers, color, params.exposure)?;
+    ctx.meter.check()?;
     let recipe = Recipe::new(
         color,
         buffers.features(),
@@ -201,6 +202,7 @@ pub fn run_gsid(
         params
             .scaling()
             .sigma(params.sigma, buffers, color, params.exposure, ctx, label)?;
+    ctx.meter.check()?;
     let progress = Progress::new(ctx.progress, label, color.height() as u64);
     let meter = &ctx.meter;
     meter.pass(color.height());

@@ -51,7 +51,10 @@ fn estimate_in(kernel: Kernel, color: &Image, features: &FeatureSet, meter: &Met
     let flat = Padded::new((w, h), 3, trim::RADIUS as usize, Margin::Zeros, |i, k| {
         c[3 * i + k] as f64 / surface.scale(i)[k]
     });
-    let mates = surface.mates(w, h, SMOOTH_RADIUS as usize);
+    let mates = surface.mates_metered(w, h, SMOOTH_RADIUS as usize, meter);
+    if meter.cancelled() {
+        return Image::new(w, h, 3);
+    }
     // Each raw estimate as its demodulated variance and its degrees of freedom (at most
     // `MAX_PAIRS`), kept apart: a byte for the count instead of a padded word.
     let mut sums = par_vec([0.0f64; 3], w * h);
@@ -81,7 +84,15 @@ fn estimate_in(kernel: Kernel, color: &Image, features: &FeatureSet, meter: &Met
     let alone: Vec<usize> = (1..h)
         .into_par_iter()
         .step_by(2)
-        .flat_map_iter(|y| (y * w..(y + 1) * w).filter(|&i| mates.of(i).all(|j| dof[j] == 0)))
+        .flat_map_iter(|y| {
+            // A cancelled run's rows are skipped: none is alone, nothing more is computed.
+            let rows = if meter.cancelled() {
+                0..0
+            } else {
+                y * w..(y + 1) * w
+            };
+            rows.filter(|&i| mates.of(i).all(|j| dof[j] == 0))
+        })
         .collect();
     let window = raw_window(&mates);
     let own: Vec<([f64; 3], usize)> = alone

@@ -6,6 +6,7 @@ use std::ops::Range;
 use crate::image::Image;
 use crate::kernels::simd::{row_kernel, Kernel};
 use crate::kernels::window_bits;
+use crate::meter::Meter;
 use crate::render_set::{Feature, FeatureSet};
 
 /// Features compared per pixel by `same_key`.
@@ -80,15 +81,21 @@ impl<'a> Surface<'a> {
     /// For every pixel, which pixels of its window of `radius` (at most 3) lie on its surface:
     /// `same_key` over runs of pixels, each pair once (`window_bits`).
     pub(crate) fn mates(&self, w: usize, h: usize, radius: usize) -> Mates {
+        self.mates_metered(w, h, radius, &Meter::default())
+    }
+
+    /// [`Surface::mates`] that stops between rows once `meter` is cancelled (unfinished then).
+    pub(crate) fn mates_metered(&self, w: usize, h: usize, radius: usize, meter: &Meter) -> Mates {
         let mut mates = Mates::new(w, radius);
         let kernel = Kernel::detect();
-        mates.bits = window_bits::window_bits(
+        mates.bits = window_bits::window_bits_metered(
             w,
             h,
             radius,
             true,
             |rows| self.planes(rows, w),
             |planes, i0, j0, bit, out| row_kernel!(kernel, same_key_run(planes: &[Vec<f32>; KEYS], i0: usize, j0: usize, bit: u32, out: &mut [u64])),
+            meter,
         );
         mates
     }

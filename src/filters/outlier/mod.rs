@@ -208,6 +208,7 @@ impl Stage for OutlierStage {
             ));
         }
         let detection = detect(color, &guides, &p);
+        ctx.meter.check()?;
         let repaired = repair(color, &detection, &guides, &p, self.params.action);
         let (w, h) = color.dims();
         let mask = detection.mask_image(w, h);

@@ -9,6 +9,7 @@ use super::levels::{expand, gaussian, reduce};
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::kernels::fastmath::exp_neg;
+use crate::meter::Meter;
 
 /// Where the bands of Laplacian blending are formed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -52,16 +53,22 @@ const GUIDE_SIGMA: f32 = 0.5;
 /// REDUCE `coarse_guide` (all in the blend domain): joint bilateral upsampling (Kopf et al. 2007).
 /// A fine pixel takes corrections only from coarse pixels that look like it, so a change made at a
 /// mixed light/ceiling pixel does not spill onto the ceiling. Zero correction expands to exactly zero.
-fn guided_expand(c: &Image, fine: &Image, coarse_guide: &Image) -> Image {
+fn guided_expand(c: &Image, fine: &Image, coarse_guide: &Image, meter: &Meter) -> Image {
     let (w, h) = fine.dims();
     let (cw, ch) = c.dims();
     let inv_r = 1.0 / (2.0 * GUIDE_SIGMA * GUIDE_SIGMA);
     let mut out = Image::new(w, h, 3);
     // Rows are independent: one parallel task per row.
+    meter.pass(h);
     out.data_mut()
         .par_chunks_mut(3 * w.max(1))
         .enumerate()
         .for_each(|(y, row)| {
+            // A cancelled run's rows are left unset: its result is thrown away.
+            if meter.cancelled() {
+                return;
+            }
+            meter.rows(1);
             let fy = (y as f32 + 0.5) * ch as f32 / h as f32 - 0.5;
             let y0 = fy.floor() as isize;
             // The spatial weights of the 4×4 taps depend only on the taps' offsets, which repeat
@@ -144,8 +151,8 @@ fn guided_expand(c: &Image, fine: &Image, coarse_guide: &Image) -> Image {
 /// corrections may move a pixel towards its neighbours' values but never beyond them (no overshoot
 /// or ringing, as the neighbourhood clamp of temporal anti-aliasing). Leaves `img` unchanged where it
 /// already is in range, so an untouched pyramid still reconstructs exactly.
-fn clamp_to_neighbourhood(img: &mut Image, guide: &Image, r: usize) {
-    clamp_in_bands(img, guide, r, CLAMP_BAND_ROWS);
+fn clamp_to_neighbourhood(img: &mut Image, guide: &Image, r: usize, meter: &Meter) {
+    clamp_in_bands(img, guide, r, CLAMP_BAND_ROWS, meter);
 }
 
 /// Output rows per task of the neighbourhood clamp: each holds its rows' (and the window's reach)
@@ -153,7 +160,7 @@ fn clamp_to_neighbourhood(img: &mut Image, guide: &Image, r: usize) {
 const CLAMP_BAND_ROWS: usize = 32;
 
 /// [`clamp_to_neighbourhood`] with `band_rows` output rows per task.
-fn clamp_in_bands(img: &mut Image, guide: &Image, r: usize, band_rows: usize) {
+fn clamp_in_bands(img: &mut Image, guide: &Image, r: usize, band_rows: usize, meter: &Meter) {
     let ((w, h), c) = (img.dims(), img.channels());
     let stride = c * w;
     if stride == 0 {
@@ -179,12 +186,17 @@ fn clamp_in_bands(img: &mut Image, guide: &Image, r: usize, band_rows: usize) {
         }
         out
     };
+    meter.pass(h);
     img.data_mut()
         .par_chunks_mut(stride * band_rows)
         .enumerate()
         .for_each(|(band, rows)| {
+            if meter.cancelled() {
+                return;
+            }
             let y0 = band * band_rows;
             let y1 = (y0 + band_rows).min(h);
+            meter.rows(y1 - y0);
             let reach = y0.saturating_sub(r)..(y1 + r).min(h);
             let (lo_rows, hi_rows) = (
                 across(reach.clone(), f32::min),
@@ -222,11 +234,31 @@ fn clamp_in_bands(img: &mut Image, guide: &Image, r: usize, band_rows: usize) {
 /// D_0 in every mode. `band_weights[l]` (default 1) scales the detail band of level l.
 /// The levels are taken, not borrowed: each is brought into the blend domain in its own memory.
 pub fn blend(
+    d: Vec<Image>,
+    band_weights: &[f32],
+    domain: BlendDomain,
+    guided: bool,
+    clamp_radius: Option<usize>,
+) -> Result<Image> {
+    blend_metered(
+        d,
+        band_weights,
+        domain,
+        guided,
+        clamp_radius,
+        &Meter::default(),
+    )
+}
+
+/// [`blend`] that ends with `Err(Cancelled)` between its passes (and skips the rows of its
+/// row loops) once `meter` is cancelled.
+pub fn blend_metered(
     mut d: Vec<Image>,
     band_weights: &[f32],
     domain: BlendDomain,
     guided: bool,
     clamp_radius: Option<usize>,
+    meter: &Meter,
 ) -> Result<Image> {
     let last = d
         .len()
@@ -240,20 +272,24 @@ pub fn blend(
     }
     domain.forward(&mut r);
     for l in (0..last).rev() {
+        meter.check()?;
         let mut fine = d.pop().expect("one image per level");
         let (w, h) = fine.dims();
         let mut reduced = reduce(&fine)?;
+        meter.check()?;
         domain.forward(&mut reduced);
         domain.forward(&mut fine);
+        meter.check()?;
         let mut correction = r;
         for (v, &lo) in correction.data_mut().iter_mut().zip(reduced.data()) {
             *v -= lo;
         }
         let up = if guided {
-            guided_expand(&correction, &fine, &reduced)
+            guided_expand(&correction, &fine, &reduced, meter)
         } else {
             expand(&correction, w, h)?
         };
+        meter.check()?;
         let b = band_weights.get(l).copied().unwrap_or(1.0);
         // The sum is formed in `up`'s memory, so `fine` stays as the clamp's guide without a copy.
         let mut next = up;
@@ -267,9 +303,11 @@ pub fn blend(
                 *v += f;
             }
         }
+        meter.check()?;
         if let Some(radius) = clamp_radius {
-            clamp_to_neighbourhood(&mut next, &fine, radius);
+            clamp_to_neighbourhood(&mut next, &fine, radius, meter);
         }
+        meter.check()?;
         r = next;
     }
     domain.inverse(&mut r);
@@ -293,7 +331,7 @@ mod tests {
                     Image::from_fn(w, h, 3, |x, y, c| ((x * 5 + y * 3 + c) % 13) as f32 - 1.0);
                 for band_rows in [1, 2, 3, CLAMP_BAND_ROWS] {
                     let mut got = img.clone();
-                    clamp_in_bands(&mut got, &guide, r, band_rows);
+                    clamp_in_bands(&mut got, &guide, r, band_rows, &Meter::default());
                     for y in 0..h {
                         for x in 0..w {
                             for c in 0..3 {

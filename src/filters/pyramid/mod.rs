@@ -260,12 +260,13 @@ impl Stage for PyramidStage {
         denoised.reverse();
         ctx.level = saved_level;
         ctx.meter.check()?;
-        let out = blend::blend(
+        let out = blend::blend_metered(
             denoised,
             &self.params.blend,
             self.params.domain,
             self.params.guided,
             (self.params.clamp_radius > 0).then_some(self.params.clamp_radius as usize),
+            &ctx.meter,
         )?;
         buffers.insert(self.io.output.clone(), out)?;
         Ok(0)

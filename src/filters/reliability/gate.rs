@@ -26,8 +26,10 @@ use rayon::prelude::*;
 
 use super::median::{fill_unrecorded, median_along, square_median, MEDIAN_RADIUS};
 use super::variance::{noise_variance, signal_variance};
+use crate::error::Result;
 use crate::image::Image;
 use crate::kernels::padded::{Margin, Padded};
+use crate::meter::Meter;
 
 /// Keeps 0/0 at a reliability of 1 (a flat, clean window).
 const EPS: f64 = 1e-12;
@@ -54,6 +56,16 @@ pub struct Params {
 
 /// The gated buffer and the reliability ρ of every pixel (one channel).
 pub fn gate(img: &Image, domain: Domain, p: Params) -> (Image, Image) {
+    gate_metered(img, domain, p, &Meter::default()).expect("a run without a cancel")
+}
+
+/// [`gate`] that ends with `Err(Cancelled)` between its passes once `meter` is cancelled.
+pub fn gate_metered(
+    img: &Image,
+    domain: Domain,
+    p: Params,
+    meter: &Meter,
+) -> Result<(Image, Image)> {
     let filled;
     let img = if domain == Domain::Log {
         filled = fill_unrecorded(img);
@@ -66,24 +78,32 @@ pub fn gate(img: &Image, domain: Domain, p: Params) -> (Image, Image) {
     let src = Padded::new((w, h), c, MEDIAN_RADIUS, Margin::Edge, |i, k| {
         to_domain(img.data()[i * c + k], domain, floor)
     });
-    let (noise, along) = noise_variance(&src, (w, h), p.radius);
+    meter.step()?;
+    let (noise, along) = noise_variance(&src, (w, h), p.radius, meter)?;
     let squares: Vec<Vec<f64>> = src
         .planes
         .iter()
-        .map(|plane| square_median(&src, plane, (w, h)))
-        .collect();
+        .map(|plane| {
+            meter.step()?;
+            Ok(square_median(&src, plane, (w, h)))
+        })
+        .collect::<Result<_>>()?;
     let medians: Vec<Vec<f64>> = src
         .planes
         .iter()
         .zip(&squares)
-        .map(|(plane, square)| median_along(&src, plane, &along, square, (w, h)))
-        .collect();
-    let signal = signal_variance(&medians, (w, h), p.radius);
+        .map(|(plane, square)| {
+            meter.step()?;
+            Ok(median_along(&src, plane, &along, square, (w, h)))
+        })
+        .collect::<Result<_>>()?;
+    let signal = signal_variance(&medians, (w, h), p.radius, meter)?;
     let centres = if domain == Domain::Log {
         &squares
     } else {
         &medians
     };
+    meter.step()?;
     let rho: Vec<f64> = signal
         .iter()
         .zip(&noise)
@@ -105,7 +125,7 @@ pub fn gate(img: &Image, domain: Domain, p: Params) -> (Image, Image) {
         });
     let rho = Image::from_vec(w, h, 1, rho.iter().map(|&r| r as f32).collect())
         .expect("one value a pixel");
-    (out, rho)
+    Ok((out, rho))
 }
 
 /// The smallest depth read in log space: relative to the farthest, so the unit of depth does not

@@ -23,7 +23,7 @@ mod gate;
 mod median;
 mod variance;
 
-pub use gate::{gate, Domain, Params};
+pub use gate::{gate, gate_metered, Domain, Params};
 pub use median::MEDIAN_RADIUS;
 
 use serde::{Deserialize, Serialize};
@@ -133,7 +133,7 @@ impl Stage for ReliabilityStage {
                 Feature::Depth => Domain::Log,
                 Feature::Albedo | Feature::Material | Feature::Shadow => Domain::Linear,
             };
-            let (gated, rho) = gate(img, domain, p);
+            let (gated, rho) = gate_metered(img, domain, p, &ctx.meter)?;
             buffers.insert(feature.name(), gated)?;
             buffers.insert(reliability_name(feature), rho)?;
         }

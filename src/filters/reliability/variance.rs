@@ -3,8 +3,10 @@
 
 use rayon::prelude::*;
 
+use crate::error::Result;
 use crate::image::par_vec;
 use crate::kernels::padded::Padded;
+use crate::meter::Meter;
 
 /// The four directions a pixel's noise is read along: horizontal, vertical, the two diagonals.
 pub(super) const DIRECTIONS: [(isize, isize); 4] = [(1, 0), (0, 1), (1, 1), (1, -1)];
@@ -23,13 +25,15 @@ pub(super) fn noise_variance(
     src: &Padded,
     (w, h): (usize, usize),
     radius: usize,
-) -> (Vec<f64>, Vec<u8>) {
+    meter: &Meter,
+) -> Result<(Vec<f64>, Vec<u8>)> {
     let mut best = par_vec(f64::INFINITY, w * h);
     let mut worst = par_vec(0.0f64, w * h);
     let mut near_best = par_vec(f64::INFINITY, w * h);
     let mut along = par_vec(0u8, w * h);
     let mut sq = par_vec(0.0, w * h);
     for (d, (dx, dy)) in DIRECTIONS.into_iter().enumerate() {
+        meter.step()?;
         sq.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
             row.fill(0.0);
             let (at, ahead, behind) = (
@@ -49,6 +53,7 @@ pub(super) fn noise_variance(
                 }
             }
         });
+        meter.step()?;
         let mean = box_mean(&sq, (w, h), radius);
         best.par_iter_mut()
             .zip(worst.par_iter_mut())
@@ -57,6 +62,7 @@ pub(super) fn noise_variance(
                 *b = b.min(m / 6.0);
                 *wst = wst.max(m / 6.0);
             });
+        meter.step()?;
         let near = box_mean(&sq, (w, h), 1);
         near_best
             .par_iter_mut()
@@ -79,7 +85,7 @@ pub(super) fn noise_variance(
                 *a = NO_DIRECTION;
             }
         });
-    (best, along)
+    Ok((best, along))
 }
 
 /// The variance over every pixel's window of the channels' medians, summed over the channels.
@@ -87,7 +93,8 @@ pub(super) fn signal_variance(
     medians: &[Vec<f64>],
     (w, h): (usize, usize),
     radius: usize,
-) -> Vec<f64> {
+    meter: &Meter,
+) -> Result<Vec<f64>> {
     let mut squares = par_vec(0.0, w * h);
     for m in medians {
         squares
@@ -95,15 +102,17 @@ pub(super) fn signal_variance(
             .zip(m.par_iter())
             .for_each(|(s, &v)| *s += v * v);
     }
+    meter.step()?;
     let mut var = box_mean(&squares, (w, h), radius);
     for m in medians {
+        meter.step()?;
         let mean = box_mean(m, (w, h), radius);
         var.par_iter_mut()
             .zip(mean.par_iter())
             .for_each(|(v, &m)| *v -= m * m);
     }
     var.par_iter_mut().for_each(|v| *v = v.max(0.0));
-    var
+    Ok(var)
 }
 
 /// The mean of every pixel's (2r+1)² window, edges replicated: along the rows (a row copied with
