@@ -264,8 +264,9 @@ pub fn spread_light(
                         let at = (y + r - sy) * side + (x + r - s.x);
                         let u = unlike(i, y * w + x);
                         // Below exp(−18) a share is nothing worth its exponential; one surface
-                        // (u = 0) needs none.
-                        if far[at] + u > 18.0 {
+                        // (u = 0) needs none; a feature that is not a number shares nothing.
+                        let e = far[at] + u;
+                        if e.is_nan() || e > 18.0 {
                             continue;
                         }
                         let share = if u > 0.0 {
@@ -417,6 +418,26 @@ mod tests {
             &Meter::default(),
         );
         assert_eq!(out, before);
+    }
+
+    #[test]
+    fn a_feature_that_is_not_a_number_shares_nothing() {
+        let (mut out, light, variance) = one_source(3.0);
+        let albedo = Image::from_fn(31, 31, 3, |x, _, _| if x == 16 { f32::NAN } else { 0.5 });
+        let guides = Guides {
+            albedo: Some(&albedo),
+            normal: None,
+        };
+        spread_light(
+            &mut out,
+            &light,
+            &variance,
+            &guides,
+            &params(1e6),
+            &Meter::default(),
+        );
+        assert!(out.data().iter().all(|v| v.is_finite()));
+        assert_eq!(out.pixel(15 * 31 + 16)[0], 0.2, "the NaN column took light");
     }
 
     #[test]
