@@ -319,15 +319,7 @@ pub unsafe extern "C" fn gsid_denoise(
 ) -> GsidStatus {
     guard(|| {
         // SAFETY: the caller's promise, for every pointer below.
-        let Some(pipeline) = (unsafe { pipeline.as_ref() }) else {
-            return Err(invalid("pipeline", "is a null pointer"));
-        };
-        let options = unsafe { options.as_ref() }
-            .copied()
-            .unwrap_or_else(|| gsid_options_default());
-        let color = unsafe { view(color, "color") }?
-            .ok_or_else(|| Error::buffer("color", "is a null pointer"))?;
-        let mut inputs = Inputs::new(color);
+        let (pipeline, options, mut inputs) = unsafe { start(pipeline, color, options) }?;
         for (feature, img) in [
             (Feature::Albedo, albedo),
             (Feature::Normal, normal),
@@ -361,20 +353,12 @@ pub unsafe extern "C" fn gsid_denoise_buffers(
 ) -> GsidStatus {
     guard(|| {
         // SAFETY: the caller's promise, for every pointer below.
-        let Some(pipeline) = (unsafe { pipeline.as_ref() }) else {
-            return Err(invalid("pipeline", "is a null pointer"));
-        };
-        let options = unsafe { options.as_ref() }
-            .copied()
-            .unwrap_or_else(|| gsid_options_default());
-        let color = unsafe { view(color, "color") }?
-            .ok_or_else(|| Error::buffer("color", "is a null pointer"))?;
+        let (pipeline, options, mut inputs) = unsafe { start(pipeline, color, options) }?;
         let buffers: &[GsidBuffer] = match (buffers.is_null(), count) {
             (_, 0) => &[],
             (true, _) => return Err(invalid("buffers", "is a null pointer")),
             (false, n) => unsafe { std::slice::from_raw_parts(buffers, n) },
         };
-        let mut inputs = Inputs::new(color);
         for buffer in buffers {
             let name = unsafe { text(buffer.name, "buffer name") }?;
             let v = unsafe { view(&buffer.image, name) }?.expect("a reference is not null");
@@ -382,6 +366,28 @@ pub unsafe extern "C" fn gsid_denoise_buffers(
         }
         unsafe { run_into(&pipeline.built, &inputs, output, &options) }
     })
+}
+
+/// What every denoise call starts from: its pipeline, its options (the defaults when null) and
+/// inputs holding the colour.
+///
+/// # Safety
+/// As [`gsid_denoise`] for `pipeline`, `color` and `options`.
+unsafe fn start<'a>(
+    pipeline: *const GsidPipeline,
+    color: *const GsidImage,
+    options: *const GsidOptions,
+) -> Result<(&'a GsidPipeline, GsidOptions, Inputs<'a>), Error> {
+    // SAFETY: the caller's promise.
+    let Some(pipeline) = (unsafe { pipeline.as_ref() }) else {
+        return Err(invalid("pipeline", "is a null pointer"));
+    };
+    let options = unsafe { options.as_ref() }
+        .copied()
+        .unwrap_or_else(|| gsid_options_default());
+    let color = unsafe { view(color, "color") }?
+        .ok_or_else(|| Error::buffer("color", "is a null pointer"))?;
+    Ok((pipeline, options, Inputs::new(color)))
 }
 
 /// [`run`] into the caller's `output`.
