@@ -99,9 +99,16 @@ impl Guides<'_> {
     /// Feature distances (albedo, normal) of pixels i and j, each 0 when its buffer is missing.
     #[inline]
     pub(super) fn distances(&self, i: usize, j: usize) -> (f32, f32) {
-        let da = self.albedo.map_or(0.0, |a| {
+        let (da2, dn) = self.squared_distances(i, j);
+        (da2.sqrt(), dn)
+    }
+
+    /// [`Guides::distances`] with the albedo's distance squared, for a caller that squares it.
+    #[inline]
+    pub(super) fn squared_distances(&self, i: usize, j: usize) -> (f32, f32) {
+        let da2 = self.albedo.map_or(0.0, |a| {
             let (p, q) = (a.pixel(i), a.pixel(j));
-            ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
+            (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)
         });
         let dn = self.normal.map_or(0.0, |n| {
             let (p, q) = (n.pixel(i), n.pixel(j));
@@ -113,7 +120,7 @@ impl Guides<'_> {
                 0.0
             }
         });
-        (da, dn)
+        (da2, dn)
     }
 
     pub(super) fn any(&self) -> bool {

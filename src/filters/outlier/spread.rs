@@ -176,31 +176,14 @@ pub fn spread_light(
 ) -> Given {
     let (w, h) = out.dims();
     let r = params.radius as usize;
-    let (albedo, normal) = (
-        guides.albedo.map(Image::data),
-        guides.normal.map(Image::data),
-    );
     let (ka, kn) = (
         0.5 / (params.albedo_tol * params.albedo_tol),
         0.5 / (params.normal_tol * params.normal_tol),
     );
-    // −ln of the surface weight exp(−½(Δalbedo/tol)² − ½(Δnormal/tol)²), Δ as the outlier stage
-    // measures it (a zero normal is unknown and matches anything).
+    // −ln of the surface weight exp(−½(Δalbedo/tol)² − ½(Δnormal/tol)²).
     let unlike = |i: usize, j: usize| -> f32 {
-        let mut e = 0.0;
-        if let Some(a) = albedo {
-            let d: f32 = (0..3).map(|k| (a[3 * i + k] - a[3 * j + k]).powi(2)).sum();
-            e += ka * d;
-        }
-        if let Some(n) = normal {
-            let (p, q) = (&n[3 * i..3 * i + 3], &n[3 * j..3 * j + 3]);
-            if p.iter().any(|&v| v != 0.0) && q.iter().any(|&v| v != 0.0) {
-                let dot = p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
-                let dn = ((1.0 - dot) * 0.5).clamp(0.0, 1.0);
-                e += kn * dn * dn;
-            }
-        }
-        e
+        let (da2, dn) = guides.squared_distances(i, j);
+        ka * da2 + kn * dn * dn
     };
     // Each source shares its light as a Gaussian bump (σ half the radius: a smooth rise, no
     // square), at the density it would have on a flat surface filling the window, not over the
@@ -244,12 +227,13 @@ pub fn spread_light(
         .data_mut()
         .par_chunks_mut(3 * w.max(1))
         .enumerate()
-        .map(|(y, row)| {
+        .map_init(Vec::new, |gained, (y, row)| {
             if meter.cancelled() {
                 return 0.0;
             }
             meter.rows(1);
-            let mut gained = vec![[0.0f64; 3]; w];
+            gained.clear();
+            gained.resize(w, [0.0f64; 3]);
             let rows = y.saturating_sub(r)..(y + r + 1).min(h);
             for (sy, row_sources) in rows.clone().zip(&sources[rows]) {
                 for s in row_sources {
@@ -281,7 +265,7 @@ pub fn spread_light(
                 }
             }
             let mut returned = 0.0;
-            for (x, (px, gain)) in row.chunks_exact_mut(3).zip(&gained).enumerate() {
+            for (x, (px, gain)) in row.chunks_exact_mut(3).zip(gained.iter()).enumerate() {
                 let j = y * w + x;
                 for k in 0..3 {
                     let sd = clean(v[3 * j + k]).sqrt();
@@ -318,6 +302,24 @@ mod tests {
         }
     }
 
+    /// [`spread_light`] with the default settings but `cap`, and no meter.
+    fn spread(
+        out: &mut Image,
+        light: &Image,
+        variance: &Image,
+        guides: &Guides,
+        cap: f64,
+    ) -> Given {
+        spread_light(
+            out,
+            light,
+            variance,
+            guides,
+            &params(cap),
+            &Meter::default(),
+        )
+    }
+
     /// A 31×31 frame of 0.2 with one pixel's removed light at its centre.
     fn one_source(removed: f32) -> (Image, Image, Image) {
         let (w, h) = (31, 31);
@@ -330,15 +332,7 @@ mod tests {
     #[test]
     fn without_a_cap_every_bit_of_light_comes_back_around_the_spike() {
         let (mut out, light, variance) = one_source(9.0);
-        let meter = Meter::default();
-        let given = spread_light(
-            &mut out,
-            &light,
-            &variance,
-            &Guides::default(),
-            &params(1e6),
-            &meter,
-        );
+        let given = spread(&mut out, &light, &variance, &Guides::default(), 1e6);
         let rise = |x: usize, y: usize| (out.pixel(y * 31 + x)[0] - 0.2) as f64;
         let added: f64 = (0..31)
             .flat_map(|y| (0..31).map(move |x| (x, y)))
@@ -361,14 +355,7 @@ mod tests {
     #[test]
     fn no_pixel_rises_by_more_than_the_cap_and_the_spike_stays_gone() {
         let (mut out, light, variance) = one_source(1e6);
-        let given = spread_light(
-            &mut out,
-            &light,
-            &variance,
-            &Guides::default(),
-            &params(0.5),
-            &Meter::default(),
-        );
+        let given = spread(&mut out, &light, &variance, &Guides::default(), 0.5);
         let most = out.data().iter().fold(0.0f32, |m, &v| m.max(v));
         assert!((most - 0.25).abs() < 1e-6, "{most}");
         assert!(given.returned < given.removed, "{given:?}");
@@ -384,14 +371,7 @@ mod tests {
             albedo: Some(&albedo),
             normal: None,
         };
-        spread_light(
-            &mut out,
-            &light,
-            &variance,
-            &guides,
-            &params(1e6),
-            &Meter::default(),
-        );
+        spread(&mut out, &light, &variance, &guides, 1e6);
         let right: f64 = (0..31 * 31)
             .filter(|i| i % 31 >= 16)
             .map(|i| out.pixel(i)[0] as f64 - 0.2)
@@ -409,14 +389,7 @@ mod tests {
         light.pixel_mut(40).fill(1.0);
         let variance = Image::filled(31, 31, 3, f32::NAN);
         let before = out.clone();
-        spread_light(
-            &mut out,
-            &light,
-            &variance,
-            &Guides::default(),
-            &params(0.5),
-            &Meter::default(),
-        );
+        spread(&mut out, &light, &variance, &Guides::default(), 0.5);
         assert_eq!(out, before);
     }
 
@@ -428,14 +401,7 @@ mod tests {
             albedo: Some(&albedo),
             normal: None,
         };
-        spread_light(
-            &mut out,
-            &light,
-            &variance,
-            &guides,
-            &params(1e6),
-            &Meter::default(),
-        );
+        spread(&mut out, &light, &variance, &guides, 1e6);
         assert!(out.data().iter().all(|v| v.is_finite()));
         assert_eq!(out.pixel(15 * 31 + 16)[0], 0.2, "the NaN column took light");
     }
@@ -469,14 +435,7 @@ mod tests {
                         albedo: Some(&albedo),
                         normal: None,
                     };
-                    spread_light(
-                        &mut o,
-                        &light,
-                        &variance,
-                        &guides,
-                        &params(0.5),
-                        &Meter::default(),
-                    );
+                    spread(&mut o, &light, &variance, &guides, 0.5);
                     o
                 })
         };
