@@ -341,6 +341,7 @@ fn ablate_prints_and_writes_the_table() {
         "without regress",
         "without blend",
         "without spread",
+        "without coverage",
         "fixed σ (no noise measured)",
         "one σ per image (no per-pixel noise)",
         "noise from the image only",
@@ -352,9 +353,9 @@ fn ablate_prints_and_writes_the_table() {
         assert!(table.contains(variant), "missing {variant}: {table}");
     }
     let text = std::fs::read_to_string(&csv).unwrap();
-    // Header, then: full, eight stages removed (the noise stage is not: later stages read it; the
+    // Header, then: full, nine stages removed (the noise stage is not: later stages read it; the
     // outlier's row takes its spread with it), the four noise rows, eight weights zeroed, plain SID.
-    assert_eq!(text.lines().count(), 1 + 22, "{text}");
+    assert_eq!(text.lines().count(), 1 + 23, "{text}");
     assert!(text.starts_with("variant,ssim,psnr,relmse,seconds,delta_ssim"));
     let bad = gsid(&[
         "ablate",

@@ -168,3 +168,27 @@ fn the_walk_budget_counts_every_gsid_stage_and_level() {
         .unwrap();
     assert!(err.to_string().contains("78750 steps per pixel"), "{err}");
 }
+
+#[test]
+fn out_of_range_coverage_keys_are_named() {
+    for (key, value, range) in [
+        ("reach", "0", "1 to 4"),
+        ("reach", "5", "1 to 4"),
+        ("tolerance", "0", "above 0"),
+        ("tolerance", "nan", "above 0"),
+    ] {
+        let mut spec = PipelineSpec::builtin("full").unwrap();
+        spec.apply_set(&format!("coverage.{key}={value}")).unwrap();
+        let err = spec.build().err().expect("rejected").to_string();
+        assert!(
+            err.contains(&format!("coverage.{key}")) && err.contains(range),
+            "{key} = {value}: {err}"
+        );
+    }
+    // Without albedo or normal there is no edge to follow: the image passes, and a note says so.
+    let notes = notes_of(&PipelineSpec::builtin("full").unwrap());
+    assert!(
+        notes.iter().any(|n| n.starts_with("coverage: no albedo or normal")),
+        "{notes:?}"
+    );
+}

@@ -4,6 +4,7 @@
 
 pub mod atrous;
 pub mod blend;
+pub mod coverage;
 pub mod gsid;
 pub mod noise;
 pub mod outlier;
@@ -21,6 +22,7 @@ pub use stage::{Context, Stage, StageIo, StageReport};
 pub const KINDS: &[&str] = &[
     "atrous",
     "blend",
+    "coverage",
     "gsid",
     "noise",
     "outlier",
@@ -42,6 +44,11 @@ pub fn build(spec: &StageSpec) -> Result<Box<dyn Stage>> {
     match spec.kind.as_str() {
         "atrous" => Ok(Box::new(atrous::AtrousStage::from_table(id, io, params())?)),
         "blend" => Ok(Box::new(blend::BlendStage::from_table(id, io, params())?)),
+        "coverage" => Ok(Box::new(coverage::CoverageStage::from_table(
+            id,
+            io,
+            params(),
+        )?)),
         "gsid" => Ok(Box::new(gsid::GsidStage::from_table(id, io, params())?)),
         "noise" => Ok(Box::new(noise::NoiseStage::from_table(id, io, params())?)),
         "outlier" => Ok(Box::new(outlier::OutlierStage::from_table(

@@ -110,11 +110,11 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
 }
 
 /// The rows that show what measuring the noise buys, for a pipeline with `noise` stages: every
-/// noise stage, noise key, blend, regression and spread taken out ("fixed σ", the behaviour before the
-/// stages followed the noise; both mixes are weighed by the noise); one σ per image (every `local_noise` set to 0, where a stage follows each pixel's
-/// own noise too); the noise always estimated from the image (a `variance` buffer, if any,
-/// ignored); and the walks taken out (the pyramid removed, à-trous on the colour, σ still from
-/// the noise).
+/// noise stage, noise key, blend, regression, spread and coverage taken out ("fixed σ", the
+/// behaviour before the stages followed the noise; those four are weighed by the noise); one σ per
+/// image (every `local_noise` set to 0, where a stage follows each pixel's own noise too); the
+/// noise always estimated from the image (a `variance` buffer, if any, ignored); and the walks
+/// taken out (the pyramid removed, à-trous on the colour, σ still from the noise).
 fn noise_variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
     let is_noise = |s: &StageSpec| s.kind == "noise";
     if !spec
@@ -125,9 +125,9 @@ fn noise_variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
         return Ok(Vec::new());
     }
     let mut fixed = spec.clone();
-    fixed
-        .stages
-        .retain(|s| !is_noise(s) && !matches!(s.kind.as_str(), "blend" | "regress" | "spread"));
+    fixed.stages.retain(|s| {
+        !is_noise(s) && !matches!(s.kind.as_str(), "blend" | "regress" | "spread" | "coverage")
+    });
     for s in &mut fixed.stages {
         s.params.remove("noise");
         s.children.retain(|c| !is_noise(c));

@@ -1,0 +1,154 @@
+//! The average along each pixel's edge, and how much of it a pixel takes.
+//!
+//! At a few samples a pixel, a pixel on an edge is not the mix of the two sides its area covers but
+//! the sides its few samples happened to land on: its features and colour both jump from side to
+//! side along the edge, and a filter that follows the features keeps that staircase. Along a
+//! straight edge every pixel covers the same share, so the mean of the pixels along it is the
+//! expected mix. A pixel moves towards that mean by the share of the variation along its edge
+//! that is not explained by a smooth edge (the features' jumps against the edge's contrast: 0 on a
+//! clean anti-aliased edge), and only as far as its colour noise covers the change (a Wiener
+//! weight, `tolerance` · noise / change², as `blend` weighs its change). An edge with another edge
+//! within three pixels (stripes, fine texture) is left alone: its direction is not one line's.
+
+use rayon::prelude::*;
+
+use super::orient::{bilinear, mix, Guide};
+use crate::filters::noise::measured::clean;
+use crate::image::{par_vec, Image};
+use crate::meter::Meter;
+
+/// How far across the edge its two sides are read, in pixels.
+const SIDE: f32 = 1.5;
+/// How far beyond a side the next edge must be for this one to count as alone.
+const BEYOND: f32 = 3.0;
+/// Least contrast (squared guide distance) across an edge that counts as one.
+const MIN_CONTRAST: f32 = 1e-4;
+
+/// `color` moved towards its mean along each pixel's edge (`reach` pixels each way, the
+/// directions of `normals`), as far as the noise `variance` covers, with `tolerance` as the
+/// slack of `blend`. Rows skipped once `meter` is cancelled.
+pub fn along_edges(
+    color: &Image,
+    variance: &Image,
+    guide: &Guide,
+    normals: &[(f32, f32)],
+    (reach, tolerance): (usize, f64),
+    meter: &Meter,
+) -> Image {
+    let (w, h) = color.dims();
+    let planes: [Vec<f32>; 3] =
+        std::array::from_fn(|k| color.data().iter().skip(k).step_by(3).copied().collect());
+    let (c, v) = (color.data(), variance.data());
+    let mut out = par_vec(0.0f32, 3 * w * h);
+    let g = guide.planes.len();
+    meter.pass(h);
+    out.par_chunks_mut(3 * w.max(1)).enumerate().for_each_init(
+        || vec![0.0f32; 6 * g],
+        |scratch, (y, row)| {
+            if meter.cancelled() {
+                return;
+            }
+            meter.rows(1);
+            for x in 0..w {
+                let i = y * w + x;
+                let px = &mut row[3 * x..3 * x + 3];
+                px.copy_from_slice(&c[3 * i..3 * i + 3]);
+                let var = v[3 * i..3 * i + 3].iter().map(|&s| clean(s)).sum::<f64>() / 3.0;
+                let pos = (x as f32, y as f32);
+                let share = jump_share(guide, pos, normals[i], reach, scratch);
+                if share <= 0.0 || var <= 0.0 {
+                    continue;
+                }
+                let mean = mean_along(&planes, (w, h), pos, normals[i], reach);
+                let change: [f64; 3] = std::array::from_fn(|k| share * (mean[k] - px[k] as f64));
+                let d2 = change.iter().map(|d| d * d).sum::<f64>() / 3.0;
+                if !(d2 > 0.0 && d2.is_finite()) {
+                    continue;
+                }
+                let keep = (tolerance * var / d2).min(1.0);
+                for k in 0..3 {
+                    px[k] = (px[k] as f64 + keep * change[k]).max(0.0) as f32;
+                }
+            }
+        },
+    );
+    Image::from_vec(w, h, 3, out).expect("3 channels a pixel")
+}
+
+/// The points along the edge through `(x, y)`: `reach` pixel steps each way along the tangent.
+fn along(
+    (x, y): (f32, f32),
+    (nx, ny): (f32, f32),
+    reach: usize,
+) -> impl Iterator<Item = (f32, f32)> {
+    let r = reach as isize;
+    (-r..=r).map(move |o| (x - o as f32 * ny, y + o as f32 * nx))
+}
+
+/// The colour's mean along the edge, per channel.
+fn mean_along(
+    planes: &[Vec<f32>; 3],
+    (w, h): (usize, usize),
+    pos: (f32, f32),
+    n: (f32, f32),
+    reach: usize,
+) -> [f64; 3] {
+    let mut sum = [0.0f64; 3];
+    for (x, y) in along(pos, n, reach) {
+        let (i, f) = bilinear(x, y, w, h);
+        for k in 0..3 {
+            sum[k] += mix(&planes[k], i, f) as f64;
+        }
+    }
+    sum.map(|s| s / (2 * reach + 1) as f64)
+}
+
+/// How much of the guide's variation along the edge through `pos` is jumps, against the edge's
+/// contrast (a side's value against the other's): 0 off an edge, on an edge with another near it,
+/// and on a smooth edge; 1 when the pixels along it are each one side or the other at random.
+fn jump_share(
+    guide: &Guide,
+    (x, y): (f32, f32),
+    (nx, ny): (f32, f32),
+    reach: usize,
+    scratch: &mut [f32],
+) -> f64 {
+    let g = guide.planes.len();
+    let (a, rest) = scratch.split_at_mut(g);
+    let (b, rest) = rest.split_at_mut(g);
+    let (a3, rest) = rest.split_at_mut(g);
+    let (b3, rest) = rest.split_at_mut(g);
+    let (sample, mean) = rest.split_at_mut(g);
+    let dist = |p: &[f32], q: &[f32]| -> f64 {
+        p.iter()
+            .zip(q)
+            .map(|(&s, &t)| ((s - t) as f64).powi(2))
+            .sum()
+    };
+    guide.sample(x + SIDE * nx, y + SIDE * ny, a);
+    guide.sample(x - SIDE * nx, y - SIDE * ny, b);
+    let contrast = dist(a, b);
+    if contrast.is_nan() || contrast <= MIN_CONTRAST as f64 {
+        return 0.0;
+    }
+    guide.sample(x + BEYOND * nx, y + BEYOND * ny, a3);
+    guide.sample(x - BEYOND * nx, y - BEYOND * ny, b3);
+    if dist(a3, a).max(dist(b3, b)) >= contrast / 4.0 {
+        return 0.0;
+    }
+    mean.fill(0.0);
+    let count = (2 * reach + 1) as f32;
+    for (px, py) in along((x, y), (nx, ny), reach) {
+        guide.sample(px, py, sample);
+        for (m, &s) in mean.iter_mut().zip(sample.iter()) {
+            *m += s / count;
+        }
+    }
+    let mut spread = 0.0;
+    for (px, py) in along((x, y), (nx, ny), reach) {
+        guide.sample(px, py, sample);
+        spread += dist(sample, mean);
+    }
+    let spread = spread / count as f64;
+    (spread / (contrast / 4.0)).clamp(0.0, 1.0)
+}

@@ -1,0 +1,168 @@
+//! Which way each pixel's feature edge runs: the orientation of the features' structure tensor.
+//!
+//! The guide is albedo and half the normal stacked (a pixel's surface), so an edge of either
+//! counts. The tensor's gradients are Sobel's and its sums a Gaussian of σ [`TENSOR_SIGMA`]: wide
+//! enough that an edge whose pixels each fell on one side or the other (a few samples a pixel) still
+//! has one direction, narrow enough to follow a curve.
+
+use rayon::prelude::*;
+
+use crate::render_set::{Feature, FeatureSet};
+
+/// σ, in pixels, of the Gaussian the tensor is summed with.
+pub const TENSOR_SIGMA: f32 = 1.5;
+
+/// The stacked guide: albedo (3 channels) then half the normal (3), whichever the set has, as
+/// channel planes; none when it has neither.
+pub struct Guide {
+    pub w: usize,
+    pub h: usize,
+    pub planes: Vec<Vec<f32>>,
+}
+
+impl Guide {
+    pub fn new(features: &FeatureSet, (w, h): (usize, usize)) -> Option<Guide> {
+        let mut planes = Vec::new();
+        for (feature, scale) in [(Feature::Albedo, 1.0f32), (Feature::Normal, 0.5)] {
+            let Some(img) = features.get(feature).filter(|i| i.dims() == (w, h)) else {
+                continue;
+            };
+            let c = img.channels();
+            for k in 0..c {
+                planes.push(
+                    img.data()
+                        .iter()
+                        .skip(k)
+                        .step_by(c)
+                        .map(|&v| if v.is_finite() { v * scale } else { 0.0 })
+                        .collect(),
+                );
+            }
+        }
+        (!planes.is_empty()).then_some(Guide { w, h, planes })
+    }
+
+    /// The guide at (x, y), bilinear between pixel centres, clamped to the image, into `out`.
+    pub fn sample(&self, x: f32, y: f32, out: &mut [f32]) {
+        let (i, f) = bilinear(x, y, self.w, self.h);
+        for (o, p) in out.iter_mut().zip(&self.planes) {
+            *o = mix(p, i, f);
+        }
+    }
+}
+
+/// The four pixel indices around (x, y) and its fractions, the position clamped to the image.
+pub fn bilinear(x: f32, y: f32, w: usize, h: usize) -> ([usize; 4], (f32, f32)) {
+    let (xc, yc) = (x.clamp(0.0, (w - 1) as f32), y.clamp(0.0, (h - 1) as f32));
+    let (x0, y0) = (xc.floor() as usize, yc.floor() as usize);
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    (
+        [y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1],
+        (xc - x0 as f32, yc - y0 as f32),
+    )
+}
+
+/// A plane's bilinear value at the indices and fractions of [`bilinear`].
+pub fn mix(p: &[f32], i: [usize; 4], (fx, fy): (f32, f32)) -> f32 {
+    let top = p[i[0]] + fx * (p[i[1]] - p[i[0]]);
+    let bottom = p[i[2]] + fx * (p[i[3]] - p[i[2]]);
+    top + fy * (bottom - top)
+}
+
+/// Per pixel, the unit direction (x, y) across its edge: the structure tensor's main axis.
+pub fn normals(guide: &Guide) -> Vec<(f32, f32)> {
+    let (w, h) = (guide.w, guide.h);
+    let at = |p: &[f32], x: isize, y: isize| {
+        p[(y.clamp(0, h as isize - 1) as usize) * w + x.clamp(0, w as isize - 1) as usize]
+    };
+    // The tensor's three entries per pixel, summed over the guide's channels.
+    let mut j: Vec<[f32; 3]> = vec![[0.0; 3]; w * h];
+    j.par_iter_mut().enumerate().for_each(|(i, e)| {
+        let (x, y) = ((i % w) as isize, (i / w) as isize);
+        for p in &guide.planes {
+            let gx = at(p, x + 1, y - 1) + 2.0 * at(p, x + 1, y) + at(p, x + 1, y + 1)
+                - at(p, x - 1, y - 1)
+                - 2.0 * at(p, x - 1, y)
+                - at(p, x - 1, y + 1);
+            let gy = at(p, x - 1, y + 1) + 2.0 * at(p, x, y + 1) + at(p, x + 1, y + 1)
+                - at(p, x - 1, y - 1)
+                - 2.0 * at(p, x, y - 1)
+                - at(p, x + 1, y - 1);
+            e[0] += gx * gx;
+            e[1] += gy * gy;
+            e[2] += gx * gy;
+        }
+    });
+    let j = gaussian(&j, w, h, TENSOR_SIGMA);
+    j.par_iter()
+        .map(|&[xx, yy, xy]| {
+            let theta = 0.5 * (2.0 * xy).atan2(xx - yy);
+            (theta.cos(), theta.sin())
+        })
+        .collect()
+}
+
+/// A separable Gaussian (σ `sigma`, radius ⌈3σ⌉, edges clamped) of three planes at once.
+fn gaussian(v: &[[f32; 3]], w: usize, h: usize, sigma: f32) -> Vec<[f32; 3]> {
+    let r = (3.0 * sigma).ceil() as isize;
+    let taps: Vec<f32> = (-r..=r)
+        .map(|d| (-(d * d) as f32 / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let norm: f32 = taps.iter().sum();
+    let pass = |src: &[[f32; 3]], horizontal: bool| -> Vec<[f32; 3]> {
+        let mut out = vec![[0.0f32; 3]; w * h];
+        out.par_iter_mut().enumerate().for_each(|(i, o)| {
+            let (x, y) = ((i % w) as isize, (i / w) as isize);
+            for (d, &t) in (-r..=r).zip(&taps) {
+                let j = if horizontal {
+                    y as usize * w + (x + d).clamp(0, w as isize - 1) as usize
+                } else {
+                    (y + d).clamp(0, h as isize - 1) as usize * w + x as usize
+                };
+                for k in 0..3 {
+                    o[k] += t * src[j][k];
+                }
+            }
+            for k in o.iter_mut() {
+                *k /= norm;
+            }
+        });
+        out
+    };
+    pass(&pass(v, true), false)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn guide_of(w: usize, h: usize, f: impl Fn(usize, usize) -> f32) -> Guide {
+        Guide {
+            w,
+            h,
+            planes: vec![(0..w * h).map(|i| f(i % w, i / w)).collect()],
+        }
+    }
+
+    #[test]
+    fn a_vertical_edge_runs_up_a_horizontal_one_across() {
+        let v = normals(&guide_of(16, 16, |x, _| if x < 8 { 0.0 } else { 1.0 }));
+        let (nx, ny) = v[8 * 16 + 8];
+        assert!(nx.abs() > 0.99 && ny.abs() < 0.05, "{nx} {ny}");
+        let hz = normals(&guide_of(16, 16, |_, y| if y < 8 { 0.0 } else { 1.0 }));
+        let (nx, ny) = hz[8 * 16 + 8];
+        assert!(ny.abs() > 0.99 && nx.abs() < 0.05, "{nx} {ny}");
+    }
+
+    #[test]
+    fn bilinear_is_exact_at_centres_and_clamped_outside() {
+        let g = guide_of(3, 2, |x, y| (x + 10 * y) as f32);
+        let mut o = [0.0];
+        g.sample(1.0, 1.0, &mut o);
+        assert_eq!(o[0], 11.0);
+        g.sample(0.5, 0.0, &mut o);
+        assert_eq!(o[0], 0.5);
+        g.sample(-5.0, 9.0, &mut o);
+        assert_eq!(o[0], 10.0);
+    }
+}
