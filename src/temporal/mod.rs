@@ -7,6 +7,7 @@
 pub mod accumulate;
 pub mod motion;
 pub mod reproject;
+pub mod variance;
 pub mod window;
 
 use crate::error::{Error, Result};
