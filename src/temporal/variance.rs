@@ -46,9 +46,9 @@ impl Sums {
         self.w += w;
         self.wa += w * a;
         self.w2a += w * w * a;
-        for k in 0..3 {
-            self.wc[k] += w * c[k];
-            self.wc2[k] += w * c[k] * c[k];
+        for (k, &c) in c.iter().take(3).enumerate() {
+            self.wc[k] += w * c;
+            self.wc2[k] += w * c * c;
         }
     }
 
