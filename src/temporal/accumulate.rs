@@ -359,39 +359,59 @@ mod tests {
         assert_eq!(merged.set.color, other.color);
     }
 
-    #[test]
-    fn a_static_stack_of_known_noise_has_that_noise_over_n_measured_over_the_surface() {
-        // Five frames of one flat surface, each with its own uniform noise of variance h²/3 per
-        // channel: the merged mean's variance is a fifth of that.
-        let (n, size, h) = (5usize, 32usize, 0.1f64);
-        let want = h * h / 3.0 / n as f64;
-        let frames: Vec<RenderSet> = (0..n)
+    /// `n` frames of one flat surface of albedo 0.5, `size`² pixels, each with its own uniform
+    /// noise of half-width `h` per channel (variance h²/3) about `level(frame, x, y)`.
+    fn noisy_stack(
+        n: usize,
+        size: usize,
+        h: f64,
+        level: impl Fn(usize, usize, usize) -> f64,
+    ) -> Vec<RenderSet> {
+        (0..n)
             .map(|k| {
                 let noise = |x: usize, y: usize, c: usize| {
                     let key = (((k * size + y) * size + x) * 3 + c) as u64;
                     let u =
                         (crate::render::integrator::mix(key) >> 11) as f64 / (1u64 << 53) as f64;
-                    (0.5 + h * (2.0 * u - 1.0)) as f32
+                    (level(k, x, y) + h * (2.0 * u - 1.0)) as f32
                 };
                 RenderSet::new(Image::from_fn(size, size, 3, noise))
                     .with(Feature::Albedo, Image::filled(size, size, 3, 0.5))
                     .unwrap()
             })
-            .collect();
+            .collect()
+    }
+
+    fn merge_still(frames: &[RenderSet]) -> Merged {
         let refs: Vec<Option<&RenderSet>> = frames.iter().map(Some).collect();
-        let id: Vec<[f32; 2]> = (0..size * size)
-            .map(|i| [(i % size) as f32, (i / size) as f32])
+        let (w, _) = frames[0].dims();
+        let id: Vec<[f32; 2]> = (0..w * w)
+            .map(|i| [(i % w) as f32, (i / w) as f32])
             .collect();
-        let merged = merge(&refs, &vec![Some(id); n], 2);
+        merge(&refs, &vec![Some(id); frames.len()], frames.len() / 2)
+    }
+
+    /// Mean over the channels of the merged variance, per pixel.
+    fn variances(merged: &Merged) -> Vec<f64> {
+        let v = merged.set.noise.variance.as_ref().unwrap();
+        let (w, h) = v.dims();
+        (0..w * h)
+            .map(|i| v.pixel(i).iter().map(|&v| v as f64).sum::<f64>() / 3.0)
+            .collect()
+    }
+
+    #[test]
+    fn a_static_stack_of_known_noise_has_that_noise_over_n_measured_over_the_surface() {
+        // Five frames of one flat surface: the merged mean's variance is a fifth of h²/3.
+        let (n, size, h) = (5usize, 32usize, 0.1f64);
+        let want = h * h / 3.0 / n as f64;
+        let merged = merge_still(&noisy_stack(n, size, h, |_, _, _| 0.5));
         assert!(
             merged.weights.iter().all(|&w| w > 0.95),
             "{:?}",
             merged.weights
         );
-        let variance = merged.set.noise.variance.unwrap();
-        let per_pixel: Vec<f64> = (0..size * size)
-            .map(|i| variance.pixel(i).iter().map(|&v| v as f64).sum::<f64>() / 3.0)
-            .collect();
+        let per_pixel = variances(&merged);
         let mean = per_pixel.iter().sum::<f64>() / per_pixel.len() as f64;
         assert!((mean / want - 1.0).abs() < 0.1, "mean {mean}, want {want}");
         // Pooled over the surface, not each pixel's own four degrees of freedom: nearly every
@@ -405,6 +425,33 @@ mod tests {
             "{close} of {} pixels within 35 %",
             per_pixel.len()
         );
+    }
+
+    #[test]
+    fn a_ghost_is_left_out_and_adds_nothing_to_the_measured_noise() {
+        // A shadow over an 8×8 block of the same surface in every frame but the centre one.
+        let (n, size, h) = (5usize, 32usize, 0.1f64);
+        let shadow = |k: usize, x: usize, y: usize| {
+            let inside = (12..20).contains(&x) && (12..20).contains(&y);
+            if k != 2 && inside {
+                0.1
+            } else {
+                0.5
+            }
+        };
+        let frames = noisy_stack(n, size, h, shadow);
+        let merged = merge_still(&frames);
+        let centre = &frames[2].color;
+        let per_pixel = variances(&merged);
+        let one_frame = h * h / 3.0;
+        for y in 14..18 {
+            for x in 14..18 {
+                assert_eq!(merged.set.color.at(x, y), centre.at(x, y), "({x}, {y})");
+                // Its own value only: one frame's noise, not the shadow's depth.
+                let v = per_pixel[y * size + x];
+                assert!((v / one_frame - 1.0).abs() < 0.5, "({x}, {y}): {v}");
+            }
+        }
     }
 
     #[test]
