@@ -9,6 +9,7 @@
 use rayon::prelude::*;
 
 use super::reproject::{bilinear, nearest, window, MAX_CHANNELS};
+use super::variance::{pooled, Spread, Sums};
 use crate::image::Image;
 use crate::render_set::{Feature, RenderSet};
 
@@ -119,13 +120,13 @@ fn patch_agreement(
 /// How far above the frame's typical noise (relative to brightness) a pixel's estimate may lie.
 const NOISE_CAP: f64 = 16.0;
 
-/// The variance of one pixel of `color`, from the image (the noise stage's estimate), as it is and capped at
+/// The variance of one pixel of `color`, from the image (the noise stage's estimate), capped at
 /// [`NOISE_CAP`] times the frame's median noise relative to the local brightness. Why: the
 /// estimate takes a mirror's sharp reflection for noise, and a reflection that moved unlike its
-/// surface's motion pass would then pass for noise too.
-fn capped_noise(color: &Image, features: &crate::render_set::FeatureSet) -> (Image, Image) {
-    let estimate = crate::filters::noise::estimate(color, features);
-    let mut noise = estimate.clone();
+/// surface's motion pass would then pass for noise too (and, where no neighbour is taken, the
+/// merged pixel's variance would claim noise that is not there).
+fn capped_noise(color: &Image, features: &crate::render_set::FeatureSet) -> Image {
+    let mut noise = crate::filters::noise::estimate(color, features);
     let (w, h) = color.dims();
     let levels: Vec<f64> = (0..w * h)
         .map(|i| {
@@ -142,7 +143,7 @@ fn capped_noise(color: &Image, features: &crate::render_set::FeatureSet) -> (Ima
         .filter(|r| r.is_finite())
         .collect();
     if ratios.is_empty() {
-        return (estimate, noise);
+        return noise;
     }
     ratios.sort_unstable_by(f64::total_cmp);
     let median = ratios[ratios.len() / 2];
@@ -150,7 +151,7 @@ fn capped_noise(color: &Image, features: &crate::render_set::FeatureSet) -> (Ima
         let cap = (NOISE_CAP * median * level) as f32;
         px.iter_mut().for_each(|v| *v = v.min(cap));
     }
-    (estimate, noise)
+    noise
 }
 
 /// The merged frame: colour and features as weighted means over the window, and what each
@@ -163,8 +164,8 @@ pub struct Merged {
 
 /// Merges the window `frames` (in frame order, `None` where missing) at the centre frame's
 /// pixels; `tracks` gives each frame's positions of those pixels (`None`: unreachable). The result
-/// carries the variance of each pixel's merged mean, from the spread of the frames it took (the
-/// centre's estimated noise where it took too few to tell).
+/// carries the variance of each pixel's merged mean, measured from the spread of the samples it and
+/// its surface-mates took (`variance`; the centre's capped noise estimate where they took none).
 pub fn merge(
     frames: &[Option<&RenderSet>],
     tracks: &[Option<Vec<[f32; 2]>>],
@@ -178,28 +179,29 @@ pub fn merge(
         .iter()
         .map(|(f, img)| (f, img.channels()))
         .collect();
-    // The weighted means (colour, features), then the colour's variance.
+    // The weighted means (colour, features).
     let means = 3 + features.iter().map(|(_, c)| c).sum::<usize>();
-    let width = means + 3;
+    let width = means;
     let used: Vec<(usize, &RenderSet, &[[f32; 2]])> = frames
         .iter()
         .zip(tracks)
         .enumerate()
         .filter_map(|(j, (f, t))| Some((j, (*f)?, t.as_deref()?)))
         .collect();
-    let (estimate, noise) = capped_noise(&base.color, &base.features);
+    let noise = capped_noise(&base.color, &base.features);
     let mut out = vec![0.0f32; w * h * width];
+    let mut spreads = vec![Spread::default(); w * h];
     let row_weights: Vec<Vec<f64>> = out
         .par_chunks_mut(w * width)
+        .zip(spreads.par_chunks_mut(w))
         .enumerate()
-        .map(|(y, row)| {
+        .map(|(y, (row, row_spreads))| {
             let mut totals = vec![0.0f64; frames.len()];
             let mut sums = vec![0.0f64; means];
             for x in 0..w {
                 let px = &mut row[x * width..(x + 1) * width];
-                merge_pixel(
+                row_spreads[x] = merge_pixel(
                     base,
-                    &estimate,
                     &noise,
                     &features,
                     &used,
@@ -235,16 +237,15 @@ pub fn merge(
             .expect("a feature keeps its channel count");
         offset += c;
     }
-    set.noise.variance = Some(plane(offset, 3));
+    set.noise.variance = Some(pooled(&spreads, &base.features, &noise));
     Merged { set, weights }
 }
 
-/// One output pixel: the weighted means and the variance of the colour's into `px`, each frame's
-/// weight added to `totals`; `sums` is the row's scratch, one slot a mean.
+/// One output pixel: the weighted means into `px`, each frame's weight added to `totals`, and the
+/// spread of its colour samples returned; `sums` is the row's scratch, one slot a mean.
 #[allow(clippy::too_many_arguments)]
 fn merge_pixel(
     base: &RenderSet,
-    estimate: &Image,
     noise: &Image,
     features: &[(Feature, usize)],
     used: &[(usize, &RenderSet, &[[f32; 2]])],
@@ -253,7 +254,7 @@ fn merge_pixel(
     px: &mut [f32],
     sums: &mut [f64],
     totals: &mut [f64],
-) {
+) -> Spread {
     let w = base.dims().0;
     let i = y * w + x;
     sums.fill(0.0);
@@ -262,8 +263,7 @@ fn merge_pixel(
         .iter()
         .map(|&(f, _)| base.features.get(f).map(|a| window(a, (x, y))))
         .collect();
-    let (mut sum_w, mut sum_w2) = (0.0f64, 0.0f64);
-    let mut sq = [0.0f64; 3];
+    let mut colour = Sums::default();
     let mut sample = [0.0f64; MAX_CHANNELS];
     for &(j, set, track) in used {
         let pos = track[i];
@@ -288,12 +288,10 @@ fn merge_pixel(
             continue;
         }
         totals[j] += weight;
-        sum_w += weight;
-        sum_w2 += weight * weight;
-        bilinear(&set.color, pos, &mut sample);
+        let kept = bilinear(&set.color, pos, &mut sample);
+        colour.add(weight, kept, &sample);
         for k in 0..3 {
             sums[k] += weight * sample[k];
-            sq[k] += weight * sample[k] * sample[k];
         }
         let mut offset = 3;
         for &(f, c) in features {
@@ -315,24 +313,10 @@ fn merge_pixel(
             offset += c;
         }
     }
-    let means = sums.len();
-    for k in 0..means {
-        px[k] = (sums[k] / sum_w) as f32;
+    for (p, &sum) in px.iter_mut().zip(sums.iter()) {
+        *p = (sum / colour.w) as f32;
     }
-    // Unbiased weighted spread of one frame's value, divided down to the merged mean's.
-    let dof = sum_w - sum_w2 / sum_w;
-    let shrink = sum_w2 / (sum_w * sum_w);
-    // Too few frames taken to tell a spread: the centre's own noise, estimated from the image as
-    // the noise stage would without the merge.
-    let own = estimate.at(x, y);
-    for k in 0..3 {
-        let one = if dof >= 0.5 {
-            ((sq[k] - sums[k] * sums[k] / sum_w) / dof).max(0.0)
-        } else {
-            own[k] as f64
-        };
-        px[means + k] = (one * shrink) as f32;
-    }
+    colour.spread()
 }
 
 #[cfg(test)]
@@ -373,6 +357,101 @@ mod tests {
         let merged = merge(&[Some(&a), Some(&other), Some(&c)], &still(3), 1);
         assert_eq!(merged.weights[0], 0.0);
         assert_eq!(merged.set.color, other.color);
+    }
+
+    /// `n` frames of one flat surface of albedo 0.5, `size`² pixels, each with its own uniform
+    /// noise of half-width `h` per channel (variance h²/3) about `level(frame, x, y)`.
+    fn noisy_stack(
+        n: usize,
+        size: usize,
+        h: f64,
+        level: impl Fn(usize, usize, usize) -> f64,
+    ) -> Vec<RenderSet> {
+        (0..n)
+            .map(|k| {
+                let noise = |x: usize, y: usize, c: usize| {
+                    let key = (((k * size + y) * size + x) * 3 + c) as u64;
+                    let u =
+                        (crate::render::integrator::mix(key) >> 11) as f64 / (1u64 << 53) as f64;
+                    (level(k, x, y) + h * (2.0 * u - 1.0)) as f32
+                };
+                RenderSet::new(Image::from_fn(size, size, 3, noise))
+                    .with(Feature::Albedo, Image::filled(size, size, 3, 0.5))
+                    .unwrap()
+            })
+            .collect()
+    }
+
+    fn merge_still(frames: &[RenderSet]) -> Merged {
+        let refs: Vec<Option<&RenderSet>> = frames.iter().map(Some).collect();
+        let (w, _) = frames[0].dims();
+        let id: Vec<[f32; 2]> = (0..w * w)
+            .map(|i| [(i % w) as f32, (i / w) as f32])
+            .collect();
+        merge(&refs, &vec![Some(id); frames.len()], frames.len() / 2)
+    }
+
+    /// Mean over the channels of the merged variance, per pixel.
+    fn variances(merged: &Merged) -> Vec<f64> {
+        let v = merged.set.noise.variance.as_ref().unwrap();
+        let (w, h) = v.dims();
+        (0..w * h)
+            .map(|i| v.pixel(i).iter().map(|&v| v as f64).sum::<f64>() / 3.0)
+            .collect()
+    }
+
+    #[test]
+    fn a_static_stack_of_known_noise_has_that_noise_over_n_measured_over_the_surface() {
+        // Five frames of one flat surface: the merged mean's variance is a fifth of h²/3.
+        let (n, size, h) = (5usize, 32usize, 0.1f64);
+        let want = h * h / 3.0 / n as f64;
+        let merged = merge_still(&noisy_stack(n, size, h, |_, _, _| 0.5));
+        assert!(
+            merged.weights.iter().all(|&w| w > 0.95),
+            "{:?}",
+            merged.weights
+        );
+        let per_pixel = variances(&merged);
+        let mean = per_pixel.iter().sum::<f64>() / per_pixel.len() as f64;
+        assert!((mean / want - 1.0).abs() < 0.1, "mean {mean}, want {want}");
+        // Pooled over the surface, not each pixel's own four degrees of freedom: nearly every
+        // pixel is close to the truth.
+        let close = per_pixel
+            .iter()
+            .filter(|&&v| (v / want - 1.0).abs() < 0.35)
+            .count();
+        assert!(
+            close as f64 >= 0.95 * per_pixel.len() as f64,
+            "{close} of {} pixels within 35 %",
+            per_pixel.len()
+        );
+    }
+
+    #[test]
+    fn a_ghost_is_left_out_and_adds_nothing_to_the_measured_noise() {
+        // A shadow over an 8×8 block of the same surface in every frame but the centre one.
+        let (n, size, h) = (5usize, 32usize, 0.1f64);
+        let shadow = |k: usize, x: usize, y: usize| {
+            let inside = (12..20).contains(&x) && (12..20).contains(&y);
+            if k != 2 && inside {
+                0.1
+            } else {
+                0.5
+            }
+        };
+        let frames = noisy_stack(n, size, h, shadow);
+        let merged = merge_still(&frames);
+        let centre = &frames[2].color;
+        let per_pixel = variances(&merged);
+        let one_frame = h * h / 3.0;
+        for y in 14..18 {
+            for x in 14..18 {
+                assert_eq!(merged.set.color.at(x, y), centre.at(x, y), "({x}, {y})");
+                // Its own value only: one frame's noise, not the shadow's depth.
+                let v = per_pixel[y * size + x];
+                assert!((v / one_frame - 1.0).abs() < 0.5, "({x}, {y}): {v}");
+            }
+        }
     }
 
     #[test]

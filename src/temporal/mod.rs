@@ -1,12 +1,14 @@
 //! Temporal denoising (`--temporal R`): frame t of a shot is merged with frames t−R … t+R before
 //! the pipeline runs. Neighbours are reprojected by the renderer's motion pass (`motion`, read by
 //! `reproject`), and each reprojected pixel counts by its agreement with frame t (`accumulate`); the
-//! merged colour, its features and the variance of its mean become the render set the pipeline
-//! sees, so every stage's strength follows the lower noise. `window` holds the frames loaded.
+//! merged colour, its features and the variance of its mean (measured from the stack, `variance`)
+//! become the render set the pipeline sees, so every stage's strength follows the lower noise.
+//! `window` holds the frames loaded.
 
 pub mod accumulate;
 pub mod motion;
 pub mod reproject;
+pub mod variance;
 pub mod window;
 
 use crate::error::{Error, Result};

@@ -15,8 +15,10 @@ pub fn nearest(img: &Image, [x, y]: [f32; 2]) -> Option<(usize, usize)> {
         .then_some((xi as usize, yi as usize))
 }
 
-/// Bilinear value of `img` at a position inside it (edge pixels repeated), into `out`.
-pub fn bilinear(img: &Image, [x, y]: [f32; 2], out: &mut [f64; MAX_CHANNELS]) {
+/// Bilinear value of `img` at a position inside it (edge pixels repeated), into `out`; returns the
+/// sum of the squared tap weights, the share of one pixel's noise variance the value keeps (1 at a
+/// whole pixel, 1/4 halfway between four).
+pub fn bilinear(img: &Image, [x, y]: [f32; 2], out: &mut [f64; MAX_CHANNELS]) -> f64 {
     let (w, h) = img.dims();
     let c = img.channels();
     let x = x.clamp(0.0, (w - 1) as f32);
@@ -31,14 +33,17 @@ pub fn bilinear(img: &Image, [x, y]: [f32; 2], out: &mut [f64; MAX_CHANNELS]) {
         (x1, y1, fx * fy),
     ];
     out[..c].iter_mut().for_each(|v| *v = 0.0);
+    let mut kept = 0.0;
     for (tx, ty, wt) in taps {
         if wt == 0.0 {
             continue;
         }
+        kept += wt * wt;
         for (o, &v) in out[..c].iter_mut().zip(img.at(tx, ty)) {
             *o += wt * v as f64;
         }
     }
+    kept
 }
 
 /// Mean and variance per channel over the 3×3 window around (x, y) (clipped at the border).
@@ -75,7 +80,7 @@ mod tests {
         let mut out = [0.0; MAX_CHANNELS];
         bilinear(&img, [2.0, 1.0], &mut out);
         assert_eq!(out[0], 12.0);
-        bilinear(&img, [1.5, 0.5], &mut out);
+        assert_eq!(bilinear(&img, [1.5, 0.5], &mut out), 0.25);
         assert_eq!(out[0], 6.5);
         assert_eq!(nearest(&img, [3.4, 2.4]), Some((3, 2)));
         assert_eq!(nearest(&img, [-0.6, 0.0]), None);

@@ -102,7 +102,7 @@ impl<'a> Surface<'a> {
 
     /// Pixel i's albedo + ε per channel (1 without albedo): colour divided by it is demodulated.
     #[inline]
-    pub(super) fn scale(&self, i: usize) -> [f64; 3] {
+    pub(crate) fn scale(&self, i: usize) -> [f64; 3] {
         match self.albedo {
             Some(a) => std::array::from_fn(|k| (a[3 * i + k].max(0.0) + ALBEDO_EPS) as f64),
             None => [1.0; 3],
@@ -110,7 +110,7 @@ impl<'a> Surface<'a> {
     }
 
     /// A variance of pixel i's colour, demodulated.
-    pub(super) fn demodulate_variance(&self, i: usize, v: impl Iterator<Item = f64>) -> [f64; 3] {
+    pub(crate) fn demodulate_variance(&self, i: usize, v: impl Iterator<Item = f64>) -> [f64; 3] {
         let s = self.scale(i);
         let mut out = [0.0; 3];
         for (k, v) in v.take(3).enumerate() {
