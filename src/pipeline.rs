@@ -47,6 +47,11 @@ pub struct RunReport {
     pub notes: Vec<String>,
     pub stages: Vec<StageReport>,
     pub seconds: f64,
+    /// The factor the colour was brought to the stages' brightness by: the buffers the run leaves
+    /// (but the colour and the result, brought back) are at that exposure; see
+    /// [`Pipeline::at_input_exposure`].
+    #[serde(skip)]
+    pub exposure_scale: f32,
 }
 
 impl RunReport {
@@ -135,8 +140,35 @@ impl Pipeline {
             notes: ctx.notes,
             stages: ctx.reports,
             seconds: start.elapsed().as_secs_f64(),
+            exposure_scale: conditioning.scale,
         };
         Ok((out, report))
+    }
+
+    /// Buffer `name` as a run left it, brought back to the input's exposure (the run's
+    /// `report.exposure_scale`): light scales with it, a variance with its square, features and masks
+    /// not at all; the colour and the result are back already.
+    pub fn at_input_exposure(&self, name: &str, buffer: &Image, report: &RunReport) -> Image {
+        let power = match self
+            .stages
+            .iter()
+            .rev()
+            .find(|s| s.writes().iter().any(|w| w == name))
+        {
+            _ if name == COLOR || name == crate::spec::OUTPUT_BUFFER => 0,
+            Some(stage) => stage.exposure_power(name),
+            None if name == crate::render_set::NoiseInputs::VARIANCE => 2,
+            None if crate::render_set::NoiseInputs::HALVES.contains(&name) => 1,
+            None => 0,
+        };
+        let mut out = buffer.clone();
+        let factor = (report.exposure_scale as f64).powi(-power);
+        if power != 0 && factor.is_finite() && factor != 1.0 {
+            for v in out.data_mut() {
+                *v = (*v as f64 * factor) as f32;
+            }
+        }
+        out
     }
 
     /// Bytes a run of this pipeline takes at most on a `w`×`h` colour, the inputs included: the

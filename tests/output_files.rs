@@ -229,3 +229,56 @@ fn oidn_quality_flag_gets_a_preset_hint() {
         assert_bad_input(&run, "-p fast|balanced|quality|full");
     }
 }
+
+/// Saved buffers are at the input's exposure, as the result is: the stages run at one internal
+/// brightness, and a variance saved at it was off by that factor squared (5× on `detail`).
+#[test]
+fn saved_buffers_follow_the_inputs_exposure() {
+    let tmp = tempfile::tempdir().unwrap();
+    let src = Path::new("fixtures/detail/spp16");
+    let read = |p: &Path| gsid::io::read_image(p, 3).unwrap();
+    // The same render four times brighter: colour ×4, its variance ×16.
+    let bright = tmp.path().join("bright");
+    std::fs::create_dir(&bright).unwrap();
+    for name in ["albedo", "normal", "depth"] {
+        let from = src.join(format!("{name}.exr"));
+        std::fs::copy(&from, bright.join(format!("{name}.exr"))).unwrap();
+    }
+    for (name, factor) in [("color", 4.0f32), ("variance", 16.0)] {
+        let mut img = read(&src.join(format!("{name}.exr")));
+        img.data_mut().iter_mut().for_each(|v| *v *= factor);
+        gsid::io::write_exr(&bright.join(format!("{name}.exr")), &img).unwrap();
+    }
+    let saved = |set: &Path, tag: &str| {
+        let (noise, light) = (
+            tmp.path().join(format!("noise-{tag}.exr")),
+            tmp.path().join(format!("light-{tag}.exr")),
+        );
+        run_ok(&[
+            "denoise",
+            set.to_str().unwrap(),
+            "-o",
+            tmp.path().join(format!("out-{tag}.exr")).to_str().unwrap(),
+            "-q",
+            "--save-buffer",
+            &format!("noise={}", noise.display()),
+            "--save-buffer",
+            &format!("outlier_light={}", light.display()),
+        ]);
+        (read(&noise), read(&light))
+    };
+    let (noise, light) = saved(&bright, "bright");
+    let (noise1, light1) = saved(src, "plain");
+    // The variance the renderer measured and the noise stage's (smoothed over the surface) agree.
+    let variance = read(&src.join("variance.exr"));
+    let mean = |img: &gsid::Image| img.data().iter().map(|&v| v as f64).sum::<f64>();
+    let ratio = mean(&noise1) / mean(&variance);
+    assert!(
+        (0.7..1.4).contains(&ratio),
+        "saved noise / variance {ratio}"
+    );
+    for (a, b, power) in [(&noise, &noise1, 16.0), (&light, &light1, 4.0)] {
+        let r = mean(a) / mean(b);
+        assert!((r / power - 1.0).abs() < 1e-3, "{r} for {power}");
+    }
+}

@@ -188,7 +188,9 @@ fn out_of_range_coverage_keys_are_named() {
     // Without albedo or normal there is no edge to follow: the image passes, and a note says so.
     let notes = notes_of(&PipelineSpec::builtin("full").unwrap());
     assert!(
-        notes.iter().any(|n| n.starts_with("coverage: no albedo or normal")),
+        notes
+            .iter()
+            .any(|n| n.starts_with("coverage: no albedo or normal")),
         "{notes:?}"
     );
 }

@@ -209,7 +209,8 @@ fn denoise_frame(
             )
         })?;
         let file = pending.path().display().to_string();
-        io::write_image(pending, buf, &frame.windows_only(), &encoding)?;
+        let buf = pipeline.at_input_exposure(&name, buf, &report);
+        io::write_image(pending, &buf, &frame.windows_only(), &encoding)?;
         saved.push(report::SavedJson { buffer: name, file });
     }
     io::write_image(pending, &out, &frame, &encoding)?;

@@ -93,6 +93,12 @@ pub trait Stage: Send + Sync {
     fn steps_per_pixel(&self) -> f64 {
         0.0
     }
+    /// How a buffer this stage writes scales with the colour's exposure: 1 for light (a filtered
+    /// image), 2 for a variance, 0 for what light does not scale (masks, features, weights). The
+    /// stages run at one internal exposure; what a user saves is brought back to the input's by it.
+    fn exposure_power(&self, _buffer: &str) -> i32 {
+        1
+    }
     /// How deep pyramids nest in this stage (0: none; 1: a pyramid of plain stages).
     fn nesting(&self) -> usize {
         0

@@ -110,6 +110,10 @@ impl Stage for NoiseStage {
         vec![self.io.output.clone()]
     }
 
+    fn exposure_power(&self, _buffer: &str) -> i32 {
+        2
+    }
+
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
         let color = buffers.require_channels(&self.io.input, 3)?;
         if let Some(done) = self.params.reuse.as_deref().filter(|_| ctx.level == 0) {

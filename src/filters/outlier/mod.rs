@@ -193,6 +193,10 @@ impl Stage for OutlierStage {
         writes
     }
 
+    fn exposure_power(&self, buffer: &str) -> i32 {
+        i32::from(buffer != self.params.mask)
+    }
+
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
         let color = buffers.require_channels(&self.io.input, 3)?;
         let guides = Guides {

@@ -201,6 +201,19 @@ impl Stage for PyramidStage {
         w
     }
 
+    fn exposure_power(&self, buffer: &str) -> i32 {
+        // What is left of a sub-stage's buffer is level 0's: the last of its stages that wrote it.
+        self.levels
+            .first()
+            .and_then(|stages| {
+                stages
+                    .iter()
+                    .rev()
+                    .find(|s| s.writes().iter().any(|w| w == buffer))
+            })
+            .map_or(1, |s| s.exposure_power(buffer))
+    }
+
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
         let (w, h) = buffers.require(&self.io.input)?.dims();
         if self.children.is_empty() {

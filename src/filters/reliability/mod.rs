@@ -116,6 +116,10 @@ impl Stage for ReliabilityStage {
             .collect()
     }
 
+    fn exposure_power(&self, _buffer: &str) -> i32 {
+        0
+    }
+
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
         let p = self.params.kernel_params();
         for &feature in &self.features {
