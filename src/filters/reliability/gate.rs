@@ -25,7 +25,7 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::mean::surface_mean;
+use super::mean::{pull_to_surface_mean, Reading};
 use super::median::{fill_unrecorded, median_along, square_median, MEDIAN_RADIUS};
 use super::variance::{noise_variance, signal_variance};
 use crate::error::Result;
@@ -54,8 +54,8 @@ pub enum Centre {
     /// The window's median (directional, or 5×5 for a distance): a two-valued mix becomes its
     /// majority.
     Median,
-    /// The mean of the raw samples of the pixel's own surface around the median-gated value
-    /// (`mean::surface_mean`): a two-valued mix becomes its proportion, the feature's reference.
+    /// The median first, then by the pixel's unreliability towards the mean of the raw samples of
+    /// its own surface (`mean`): a two-valued mix becomes its proportion, the feature's reference.
     #[default]
     Mean,
 }
@@ -147,10 +147,14 @@ pub fn gate_metered(
         })
         .collect();
     if p.centre == Centre::Mean {
-        gated = surface_mean(
+        let reading = Reading {
+            rho: &rho,
+            along: &along,
+        };
+        gated = pull_to_surface_mean(
             &raw,
             &gated,
-            &noise,
+            reading,
             (w, h),
             (p.radius, p.pair_noise),
             meter,
