@@ -148,19 +148,19 @@ mod tests {
     fn a_two_valued_mix_becomes_its_proportion_not_its_majority() {
         // One sample in three sees the medium (0.9), the rest the surface (0.2); the gate pulled
         // every pixel to the majority. Unreliable pixels take the mix, 0.2 + (0.9 − 0.2)/3.
-        let raw: Vec<f64> = (0..144)
+        let raw: Vec<f64> = (0..156)
             .map(|i| if i % 3 == 0 { 0.9 } else { 0.2 })
             .collect();
-        let out = run(&raw, &[0.2; 144], 0.0, 12);
+        let out = run(&raw, &[0.2; 156], 0.0, 13);
         let want = 0.2 + 0.7 / 3.0;
         for y in 3..9 {
-            for x in 3..9 {
-                let v = out[y * 12 + x];
+            for x in 3..10 {
+                let v = out[y * 13 + x];
                 assert!((v - want).abs() < 0.03, "({x}, {y}) = {v}, want {want}");
             }
         }
         // A reliable pixel keeps its gated value.
-        assert_eq!(run(&raw, &[0.2; 144], 1.0, 12), vec![0.2; 144]);
+        assert_eq!(run(&raw, &[0.2; 156], 1.0, 13), vec![0.2; 156]);
     }
 
     #[test]
