@@ -87,7 +87,10 @@ pub(super) fn pull_to_surface_mean(
                     .sum();
                 let weight = (-d2 / scale).exp();
                 // A distance of infinity (nothing hit) is no sample of a surface.
-                if !(weight > 0.0) || (0..c).any(|k| !raw_p.planes[k][at].is_finite()) {
+                if weight.is_nan()
+                    || weight <= 0.0
+                    || (0..c).any(|k| !raw_p.planes[k][at].is_finite())
+                {
                     return;
                 }
                 total += weight;
