@@ -335,6 +335,7 @@ fn ablate_prints_and_writes_the_table() {
         "full (full)",
         "without outlier",
         "without reliability",
+        "reliability with median centres",
         "without prefilter",
         "without pyramid",
         "without atrous",
@@ -354,8 +355,9 @@ fn ablate_prints_and_writes_the_table() {
     }
     let text = std::fs::read_to_string(&csv).unwrap();
     // Header, then: full, nine stages removed (the noise stage is not: later stages read it; the
-    // outlier's row takes its spread with it), the four noise rows, eight weights zeroed, plain SID.
-    assert_eq!(text.lines().count(), 1 + 23, "{text}");
+    // outlier's row takes its spread with it), the reliability's median centre, the four noise
+    // rows, eight weights zeroed, plain SID.
+    assert_eq!(text.lines().count(), 1 + 24, "{text}");
     assert!(text.starts_with("variant,ssim,psnr,relmse,seconds,delta_ssim"));
     let bad = gsid(&[
         "ablate",

@@ -1,7 +1,8 @@
 //! `gsid ablate`: what does each stage and each feature buy?
 //!
 //! Runs a pipeline, then variants of it: each top-level stage removed in turn (a pyramid is
-//! "removed" by running its sub-stages at full size only), each of the eight feature weights zeroed in
+//! "removed" by running its sub-stages at full size only), a `reliability` stage's surface mean
+//! replaced by its median centre, each of the eight feature weights zeroed in
 //! every stage that uses them (gsid, atrous), and plain SID; scores each against the reference.
 
 use std::time::Instant;
@@ -88,6 +89,7 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
             out.push(Variant { name, spec: v });
         }
     }
+    out.extend(median_centre_variants(spec)?);
     out.extend(noise_variants(spec)?);
     let paths = feature_paths(spec);
     if !paths.is_empty() {
@@ -106,6 +108,25 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
         name: "plain SID".into(),
         spec: PipelineSpec::resolve("sid")?,
     });
+    Ok(out)
+}
+
+/// For every `reliability` stage that pulls noisy pixels towards their surface's mean (the default),
+/// the row with its median centre instead: what the surface mean buys.
+fn median_centre_variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
+    let mut out = Vec::new();
+    for (i, stage) in spec.stages.iter().enumerate() {
+        let centre = stage.params.get("centre").and_then(toml::Value::as_str);
+        if stage.kind != "reliability" || centre.is_some_and(|c| c != "mean") {
+            continue;
+        }
+        let mut v = spec.clone();
+        v.stages[i].set(&["centre"], toml::Value::String("median".into()))?;
+        out.push(Variant {
+            name: format!("{} with median centres", stage.id),
+            spec: v,
+        });
+    }
     Ok(out)
 }
 

@@ -23,7 +23,9 @@
 //! runs in f64 in a fixed order per pixel: the same bits on any thread count.
 
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 
+use super::mean::{pull_to_surface_mean, Reading};
 use super::median::{fill_unrecorded, median_along, square_median, MEDIAN_RADIUS};
 use super::variance::{noise_variance, signal_variance};
 use crate::error::Result;
@@ -45,6 +47,19 @@ pub enum Domain {
     Log,
 }
 
+/// What a noisy pixel is pulled towards.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Centre {
+    /// The window's median (directional, or 5×5 for a distance): a two-valued mix becomes its
+    /// majority.
+    Median,
+    /// The median first, then by the pixel's unreliability towards the mean of the raw samples of
+    /// its own surface (`mean`): a two-valued mix becomes its proportion, the feature's reference.
+    #[default]
+    Mean,
+}
+
 /// Settings of the gate.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Params {
@@ -52,6 +67,8 @@ pub struct Params {
     pub radius: usize,
     /// k: the noise's share in the reliability.
     pub pair_noise: f64,
+    /// What a noisy pixel is pulled towards.
+    pub centre: Centre,
 }
 
 /// The gated buffer and the reliability ρ of every pixel (one channel).
@@ -109,15 +126,47 @@ pub fn gate_metered(
         .zip(&noise)
         .map(|(&s, &n)| (s + EPS) / (s + p.pair_noise * n + EPS))
         .collect();
+    let raw: Vec<Vec<f64>> = src
+        .planes
+        .iter()
+        .map(|plane| {
+            (0..w * h)
+                .map(|i| plane[src.index((i % w) as isize, (i / w) as isize)])
+                .collect()
+        })
+        .collect();
+    let mut gated: Vec<Vec<f64>> = raw
+        .iter()
+        .zip(centres)
+        .map(|(v, m)| {
+            v.iter()
+                .zip(m)
+                .zip(&rho)
+                .map(|((&v, &m), &r)| m + r * (v - m))
+                .collect()
+        })
+        .collect();
+    if p.centre == Centre::Mean {
+        let reading = Reading {
+            rho: &rho,
+            along: &along,
+        };
+        gated = pull_to_surface_mean(
+            &raw,
+            &gated,
+            reading,
+            (w, h),
+            (p.radius, p.pair_noise),
+            meter,
+        )?;
+    }
     let mut out = Image::new(w, h, c);
     out.data_mut()
         .par_chunks_mut(c)
         .enumerate()
         .for_each(|(i, px)| {
-            let at = src.index((i % w) as isize, (i / w) as isize);
             for k in 0..c {
-                let (v, m) = (src.planes[k][at], centres[k][i]);
-                px[k] = from_domain(m + rho[i] * (v - m), domain);
+                px[k] = from_domain(gated[k][i], domain);
             }
             if domain == Domain::Normal {
                 renormalise(px, img.pixel(i));
@@ -180,6 +229,7 @@ mod tests {
     const P: Params = Params {
         radius: 3,
         pair_noise: 2.0,
+        centre: Centre::Median,
     };
 
     #[test]

@@ -6,7 +6,9 @@
 //! texture. This stage reads, per pixel, how much of the buffer's local variation its noise explains
 //! (`gate`: noise from directional second differences, signal from the variance of a directional
 //! median)
-//! and pulls the pixel towards its window's median in that proportion. Every later stage (prefilter,
+//! and pulls the pixel towards its window's median in that proportion; then (`centre = "mean"`,
+//! `mean`) replaces it by the mean of the raw samples of its own surface around it, which is what
+//! the feature's reference is where the samples see two things in proportion. Every later stage (prefilter,
 //! walks, à-trous, fit) then sees a buffer that differs between two pixels only where the surface
 //! does: a feature's say in the pixel difference follows its reliability, with no kernel changed.
 //! The reliability of each gated feature is kept as `<feature>_reliability` (for `--save-buffer`).
@@ -16,14 +18,16 @@
 //! kind = "reliability"
 //! features = ["albedo", "normal", "depth"]   # gated, each in place
 //! radius = 3                                 # window of the variances, (2·3+1)²
+//! centre = "mean"                            # or "median"
 //! ```
 //! A listed feature the render set does not have is skipped with a note.
 
 mod gate;
+mod mean;
 mod median;
 mod variance;
 
-pub use gate::{gate, gate_metered, Domain, Params};
+pub use gate::{gate, gate_metered, Centre, Domain, Params};
 pub use median::MEDIAN_RADIUS;
 
 use serde::{Deserialize, Serialize};
@@ -45,6 +49,10 @@ pub struct ReliabilityParams {
     /// Radius of the window the noise and the signal are read over. Larger reads both more surely
     /// and blurs the reliability across edges (time grows with it, linearly).
     pub radius: usize,
+    /// What a noisy pixel is pulled towards: `mean`, the mean of its own surface's raw samples (a
+    /// mix of medium and surface becomes its proportion, as the reference does), or `median`, the
+    /// window's median (the mix becomes its majority, in blotches).
+    pub centre: Centre,
 }
 
 impl Default for ReliabilityParams {
@@ -52,6 +60,7 @@ impl Default for ReliabilityParams {
         ReliabilityParams {
             features: vec!["albedo".into(), "normal".into(), "depth".into()],
             radius: 3,
+            centre: Centre::Mean,
         }
     }
 }
@@ -72,6 +81,7 @@ impl ReliabilityParams {
         Params {
             radius: self.radius,
             pair_noise: 2.0,
+            centre: self.centre,
         }
     }
 }

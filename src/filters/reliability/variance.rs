@@ -117,7 +117,7 @@ pub(super) fn signal_variance(
 
 /// The mean of every pixel's (2r+1)² window, edges replicated: along the rows (a row copied with
 /// r edge cells each side), then down the columns (whole rows added, clamped at the edges).
-fn box_mean(v: &[f64], (w, h): (usize, usize), radius: usize) -> Vec<f64> {
+pub(super) fn box_mean(v: &[f64], (w, h): (usize, usize), radius: usize) -> Vec<f64> {
     let n = (2 * radius + 1) as f64;
     let mut rows = par_vec(0.0, w * h);
     rows.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
