@@ -24,6 +24,9 @@ use crate::image::par_vec;
 use crate::kernels::padded::{Margin, Padded};
 use crate::meter::Meter;
 
+/// Squared distances over this many times a pixel's scale weigh nothing (e^−40).
+const FAR: f64 = 40.0;
+
 /// What the surface mean reads besides the buffers: per pixel, the reliability `rho` and the
 /// window's direction `along` (an index into `DIRECTIONS`, or `NO_DIRECTION`).
 pub(super) struct Reading<'a> {
@@ -59,6 +62,10 @@ pub(super) fn pull_to_surface_mean(
         })
     };
     let (raw_p, gated_p) = (pad(raw), pad(gated));
+    // 1 where every channel of the raw sample is finite: a sample of a surface.
+    let sample = Padded::new((w, h), 1, radius, Margin::Edge, |i, _| {
+        f64::from(u8::from((0..c).all(|k| raw[k][i].is_finite())))
+    });
     let r = radius as isize;
     let mut flat = par_vec(0.0f64, w * h * c);
     meter.step()?;
@@ -78,19 +85,24 @@ pub(super) fn pull_to_surface_mean(
             }
             sums.fill(0.0);
             let mut total = 0.0;
+            // Beyond this squared distance a weight is below e^−40 (under 1e-17 of the pixel's
+            // own, 1): skipped without its exponential.
+            let far = FAR * scale;
             let mut tap = |at: usize| {
-                let d2: f64 = (0..c)
-                    .map(|k| {
-                        let d = gated_p.planes[k][at] - gated[k][i];
-                        d * d
-                    })
-                    .sum();
-                let weight = (-d2 / scale).exp();
                 // A distance of infinity (nothing hit) is no sample of a surface.
-                if weight.is_nan()
-                    || weight <= 0.0
-                    || (0..c).any(|k| !raw_p.planes[k][at].is_finite())
-                {
+                if sample.planes[0][at] == 0.0 {
+                    return;
+                }
+                let mut d2 = 0.0;
+                for k in 0..c {
+                    let d = gated_p.planes[k][at] - gated[k][i];
+                    d2 += d * d;
+                }
+                if !(d2 < far) {
+                    return;
+                }
+                let weight = (-d2 / scale).exp();
+                if weight.is_nan() || weight <= 0.0 {
                     return;
                 }
                 total += weight;
