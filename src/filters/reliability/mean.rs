@@ -94,11 +94,12 @@ pub(super) fn pull_to_surface_mean(
                     return;
                 }
                 let mut d2 = 0.0;
-                for k in 0..c {
-                    let d = gated_p.planes[k][at] - gated[k][i];
+                for (plane, own) in gated_p.planes.iter().zip(gated) {
+                    let d = plane[at] - own[i];
                     d2 += d * d;
                 }
-                if !(d2 < far) {
+                // NaN included: a distance not below `far` weighs nothing.
+                if d2.partial_cmp(&far) != Some(std::cmp::Ordering::Less) {
                     return;
                 }
                 let weight = (-d2 / scale).exp();
