@@ -148,27 +148,37 @@ impl Pipeline {
     /// Buffer `name` as a run left it, brought back to the input's exposure (the run's
     /// `report.exposure_scale`): light scales with it, a variance with its square, features and masks
     /// not at all; the colour and the result are back already.
-    pub fn at_input_exposure(&self, name: &str, buffer: &Image, report: &RunReport) -> Image {
-        let power = match self
-            .stages
-            .iter()
-            .rev()
-            .find(|s| s.writes().iter().any(|w| w == name))
-        {
-            _ if name == COLOR || name == crate::spec::OUTPUT_BUFFER => 0,
-            Some(stage) => stage.exposure_power(name),
-            None if name == crate::render_set::NoiseInputs::VARIANCE => 2,
-            None if crate::render_set::NoiseInputs::HALVES.contains(&name) => 1,
-            None => 0,
+    pub fn at_input_exposure<'a>(
+        &self,
+        name: &str,
+        buffer: &'a Image,
+        report: &RunReport,
+    ) -> std::borrow::Cow<'a, Image> {
+        use crate::render_set::NoiseInputs;
+        let writer = || {
+            self.stages
+                .iter()
+                .rev()
+                .find(|s| s.writes().iter().any(|w| w == name))
         };
-        let mut out = buffer.clone();
+        let power = if name == COLOR || name == crate::spec::OUTPUT_BUFFER {
+            0
+        } else if let Some(stage) = writer() {
+            stage.exposure_power(name)
+        } else if name == NoiseInputs::VARIANCE {
+            2
+        } else {
+            i32::from(NoiseInputs::HALVES.contains(&name))
+        };
         let factor = (report.exposure_scale as f64).powi(-power);
-        if power != 0 && factor.is_finite() && factor != 1.0 {
-            for v in out.data_mut() {
-                *v = (*v as f64 * factor) as f32;
-            }
+        if power == 0 || !factor.is_finite() || factor == 1.0 {
+            return std::borrow::Cow::Borrowed(buffer);
         }
-        out
+        let mut out = buffer.clone();
+        for v in out.data_mut() {
+            *v = (*v as f64 * factor) as f32;
+        }
+        std::borrow::Cow::Owned(out)
     }
 
     /// Bytes a run of this pipeline takes at most on a `w`×`h` colour, the inputs included: the

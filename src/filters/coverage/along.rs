@@ -43,7 +43,7 @@ pub fn along_edges(
     let g = guide.planes.len();
     meter.pass(h);
     out.par_chunks_mut(3 * w.max(1)).enumerate().for_each_init(
-        || vec![0.0f32; 6 * g],
+        || vec![0.0f32; (2 * reach + 6) * g],
         |scratch, (y, row)| {
             if meter.cancelled() {
                 return;
@@ -106,6 +106,7 @@ fn mean_along(
 /// How much of the guide's variation along the edge through `pos` is jumps, against the edge's
 /// contrast (a side's value against the other's): 0 off an edge, on an edge with another near it,
 /// and on a smooth edge; 1 when the pixels along it are each one side or the other at random.
+/// `scratch` holds `2·reach + 6` guide pixels.
 fn jump_share(
     guide: &Guide,
     (x, y): (f32, f32),
@@ -118,7 +119,7 @@ fn jump_share(
     let (b, rest) = rest.split_at_mut(g);
     let (a3, rest) = rest.split_at_mut(g);
     let (b3, rest) = rest.split_at_mut(g);
-    let (sample, mean) = rest.split_at_mut(g);
+    let (mean, samples) = rest.split_at_mut(g);
     let dist = |p: &[f32], q: &[f32]| -> f64 {
         p.iter()
             .zip(q)
@@ -136,19 +137,16 @@ fn jump_share(
     if dist(a3, a).max(dist(b3, b)) >= contrast / 4.0 {
         return 0.0;
     }
+    // Each point along the edge read once: its mean first, then the spread around it.
     mean.fill(0.0);
     let count = (2 * reach + 1) as f32;
-    for (px, py) in along((x, y), (nx, ny), reach) {
+    for ((px, py), sample) in along((x, y), (nx, ny), reach).zip(samples.chunks_exact_mut(g)) {
         guide.sample(px, py, sample);
         for (m, &s) in mean.iter_mut().zip(sample.iter()) {
             *m += s / count;
         }
     }
-    let mut spread = 0.0;
-    for (px, py) in along((x, y), (nx, ny), reach) {
-        guide.sample(px, py, sample);
-        spread += dist(sample, mean);
-    }
+    let spread: f64 = samples.chunks_exact(g).map(|s| dist(s, mean)).sum();
     let spread = spread / count as f64;
     (spread / (contrast / 4.0)).clamp(0.0, 1.0)
 }

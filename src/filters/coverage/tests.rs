@@ -116,9 +116,7 @@ fn stripes_pass_unchanged() {
 fn the_same_bits_on_one_and_two_threads() {
     let (color, set) = staircase();
     let on = |threads| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
+        crate::options::thread_pool(threads)
             .unwrap()
             .install(|| run(&color, &set, 0.2))
     };

@@ -425,19 +425,15 @@ mod tests {
             |x, y, _| if (x / 5 + y / 7) % 2 == 0 { 0.3 } else { 0.6 },
         );
         let run = |threads| {
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap()
-                .install(|| {
-                    let mut o = out.clone();
-                    let guides = Guides {
-                        albedo: Some(&albedo),
-                        normal: None,
-                    };
-                    spread(&mut o, &light, &variance, &guides, 0.5);
-                    o
-                })
+            crate::options::thread_pool(threads).unwrap().install(|| {
+                let mut o = out.clone();
+                let guides = Guides {
+                    albedo: Some(&albedo),
+                    normal: None,
+                };
+                spread(&mut o, &light, &variance, &guides, 0.5);
+                o
+            })
         };
         assert_eq!(run(1), run(2));
     }
