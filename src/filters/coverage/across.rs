@@ -133,7 +133,7 @@ fn edge_tail(
     let last = &rest[(n - 2) * g..];
     let ab: Vec<f64> = first.iter().zip(last).map(|(a, b)| a - b).collect();
     let contrast: f64 = ab.iter().map(|d| d * d).sum();
-    if !(contrast >= CONTRAST) {
+    if contrast.is_nan() || contrast < CONTRAST {
         return None;
     }
     for k in 1..n - 1 {
@@ -239,7 +239,7 @@ pub fn across_edges(
                     continue;
                 }
                 let var = least_around(&noise, (w, h), (x, y));
-                if !(var > 0.0) {
+                if var.is_nan() || var <= 0.0 {
                     continue;
                 }
                 let (nx, ny) = normals[i];
