@@ -185,6 +185,16 @@ fn out_of_range_coverage_keys_are_named() {
             "{key} = {value}: {err}"
         );
     }
+    // `across` is a switch: a number for it is rejected, naming the key.
+    let mut spec = PipelineSpec::builtin("full").unwrap();
+    let err = match spec.apply_set("coverage.across=2") {
+        Err(e) => e.to_string(),
+        Ok(()) => spec.build().err().expect("rejected").to_string(),
+    };
+    assert!(err.contains("across"), "{err}");
+    let mut spec = PipelineSpec::builtin("full").unwrap();
+    spec.apply_set("coverage.across=false").unwrap();
+    assert!(spec.build().is_ok());
     // Without albedo or normal there is no edge to follow: the image passes, and a note says so.
     let notes = notes_of(&PipelineSpec::builtin("full").unwrap());
     assert!(

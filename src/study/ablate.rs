@@ -90,6 +90,7 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
         }
     }
     out.extend(median_centre_variants(spec)?);
+    out.extend(across_variants(spec)?);
     out.extend(noise_variants(spec)?);
     let paths = feature_paths(spec);
     if !paths.is_empty() {
@@ -124,6 +125,25 @@ fn median_centre_variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
         v.stages[i].set(&["centre"], toml::Value::String("median".into()))?;
         out.push(Variant {
             name: format!("{} with median centres", stage.id),
+            spec: v,
+        });
+    }
+    Ok(out)
+}
+
+/// For every `coverage` stage that spreads colour across edges (the default), the row without that
+/// spread: what the renderer's estimated pixel-filter width buys.
+fn across_variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
+    let mut out = Vec::new();
+    for (i, stage) in spec.stages.iter().enumerate() {
+        let across = stage.params.get("across").and_then(toml::Value::as_bool);
+        if stage.kind != "coverage" || across == Some(false) {
+            continue;
+        }
+        let mut v = spec.clone();
+        v.stages[i].set(&["across"], toml::Value::Boolean(false))?;
+        out.push(Variant {
+            name: format!("{} without the across-edge spread", stage.id),
             spec: v,
         });
     }

@@ -10,7 +10,9 @@
 //! colour's noise covers the change (`along`). A clean anti-aliased edge, flat surfaces, and
 //! stripes or fine texture (another edge within three pixels) pass unchanged; without albedo or
 //! normal the stage passes the image through with a note. Each pixel reads only its inputs, so any
-//! thread count gives the same bits (docs/ALGORITHM.md §8, "Edges at few samples").
+//! thread count gives the same bits (docs/ALGORITHM.md §8, "Edges at few samples"). Then, where the
+//! renderer's pixel filter is wider than a box (read from the features' edges, `across`), each edge
+//! pixel takes its share of the pixels across its edge, as far as its noise covers.
 //!
 //! ```toml
 //! [[stage]]
@@ -20,8 +22,10 @@
 //! output = "out"
 //! reach = 1            # pixels read each way along the edge
 //! tolerance = 1.0      # slack on the noise, as `blend`'s
+//! across = true        # spread across edges as the renderer's filter does (estimated)
 //! ```
 
+mod across;
 mod along;
 mod orient;
 
@@ -31,6 +35,7 @@ use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::filters::stage::{parse_params, Context, Stage, StageIo};
 
+pub use across::{across_edges, spread, Spread};
 pub use along::along_edges;
 pub use orient::{normals, Guide};
 
@@ -43,6 +48,10 @@ pub struct CoverageParams {
     pub reach: usize,
     /// How far the change may exceed the noise before it is scaled down, as `blend`'s tolerance.
     pub tolerance: f64,
+    /// Then spread each edge pixel's colour across its edge by as much as the renderer's pixel
+    /// filter spreads the features' edges (estimated per image; none for a box filter). Costs a
+    /// pass over the edge pixels.
+    pub across: bool,
 }
 
 impl Default for CoverageParams {
@@ -51,6 +60,7 @@ impl Default for CoverageParams {
             noise: "noise".into(),
             reach: 1,
             tolerance: 1.0,
+            across: true,
         }
     }
 }
@@ -134,6 +144,20 @@ impl Stage for CoverageStage {
             (p.reach, p.tolerance),
             &ctx.meter,
         );
+        ctx.meter.check()?;
+        let out = if p.across {
+            let share = spread(&guide, &dirs).share();
+            across_edges(
+                &out,
+                variance,
+                &guide,
+                &dirs,
+                (share, p.tolerance),
+                &ctx.meter,
+            )
+        } else {
+            out
+        };
         ctx.meter.check()?;
         buffers.insert(self.io.output.clone(), out)?;
         Ok(0)

@@ -18,11 +18,14 @@ pub struct Guide {
     pub w: usize,
     pub h: usize,
     pub planes: Vec<Vec<f32>>,
+    /// How many of the planes, from the first, are albedo (the rest are half the normal).
+    pub albedo: usize,
 }
 
 impl Guide {
     pub fn new(features: &FeatureSet, (w, h): (usize, usize)) -> Option<Guide> {
         let mut planes = Vec::new();
+        let mut albedo = 0;
         for (feature, scale) in [(Feature::Albedo, 1.0f32), (Feature::Normal, 0.5)] {
             let Some(img) = features.get(feature).filter(|i| i.dims() == (w, h)) else {
                 continue;
@@ -38,8 +41,16 @@ impl Guide {
                         .collect(),
                 );
             }
+            if feature == Feature::Albedo {
+                albedo = planes.len();
+            }
         }
-        (!planes.is_empty()).then_some(Guide { w, h, planes })
+        (!planes.is_empty()).then_some(Guide {
+            w,
+            h,
+            planes,
+            albedo,
+        })
     }
 
     /// The guide at (x, y), bilinear between pixel centres, clamped to the image, into `out`.
@@ -141,6 +152,7 @@ mod tests {
             w,
             h,
             planes: vec![(0..w * h).map(|i| f(i % w, i / w)).collect()],
+            albedo: 1,
         }
     }
 

@@ -137,7 +137,21 @@ fn hard_images_stay_finite_and_non_negative() {
                 |x, y, _| if (x + y) % 2 == 0 { f32::NAN } else { 0.5 },
             );
             set.set(Feature::Albedo, albedo).unwrap();
-            let out = run(&color, &set, 1e3);
+            let along = run(&color, &set, 1e3);
+            let guide = Guide::new(&set, (w, h)).expect("an albedo");
+            let dirs = normals(&guide);
+            let variance = Image::filled(w, h, 3, 1e3);
+            let spread = super::spread(&guide, &dirs);
+            assert!(spread.tail.is_finite(), "{w}×{h}: {spread:?}");
+            // The largest share the stage can take, on every edge pixel the hard image has.
+            let out = super::across_edges(
+                &along,
+                &variance,
+                &guide,
+                &dirs,
+                (0.25, 1.0),
+                &Meter::default(),
+            );
             assert!(
                 out.data().iter().all(|v| v.is_finite() && *v >= 0.0),
                 "{w}×{h} at {value}: {:?}",
@@ -145,4 +159,134 @@ fn hard_images_stay_finite_and_non_negative() {
             );
         }
     }
+}
+
+/// Vertical edges at x = 10.3, 26.3, 42.3 and 58.3 between albedo 0.2 and 0.8 (alternating),
+/// 64×64, each pixel's `n` samples placed by `place` (the sample's x offset from the pixel's centre
+/// for a uniform draw `u` in [0, 1) and a normal draw `g`): the albedo and colour (0.1 and 0.9) of
+/// the sides the samples landed on, averaged.
+fn edges(n: usize, seed: u64, place: impl Fn(f64, f64) -> f64) -> (Image, FeatureSet) {
+    let mut next = crate::kernels::trim::tests::xorshift(seed);
+    let mut uniform = move || (next() >> 11) as f64 / (1u64 << 53) as f64;
+    let side = |x: f64| {
+        let k = [10.3, 26.3, 42.3, 58.3].iter().filter(|&&e| x >= e).count();
+        (k % 2) as f32
+    };
+    let (w, h) = (64, 64);
+    let mut share = vec![0.0f32; w * h];
+    for (i, s) in share.iter_mut().enumerate() {
+        for _ in 0..n {
+            let (u, v) = (uniform(), uniform());
+            // Box–Muller: one normal draw from two uniform ones.
+            let g = (-2.0 * (1.0 - u).ln()).sqrt() * (std::f64::consts::TAU * v).cos();
+            *s += side((i % w) as f64 + place(u, g)) / n as f32;
+        }
+    }
+    let color = Image::from_fn(w, h, 3, |x, y, _| 0.1 + 0.8 * share[y * w + x]);
+    let mut set = FeatureSet::default();
+    set.set(
+        Feature::Albedo,
+        Image::from_fn(w, h, 3, |x, y, _| 0.2 + 0.6 * share[y * w + x]),
+    )
+    .unwrap();
+    (color, set)
+}
+
+/// A box pixel filter: samples uniform over the pixel.
+fn boxed(u: f64, _: f64) -> f64 {
+    u - 0.5
+}
+
+/// A wide pixel filter, importance-sampled: offsets of a Gaussian of σ 1 pixel (the three Cycles
+/// fixtures' features read a tail of 0.30 to 0.50, as this filter's do).
+fn wide(_: f64, g: f64) -> f64 {
+    g
+}
+
+fn spread_of(set: &FeatureSet) -> super::Spread {
+    let guide = Guide::new(set, (64, 64)).expect("an albedo");
+    super::spread(&guide, &normals(&guide))
+}
+
+#[test]
+fn the_spread_tells_a_box_filter_from_a_wide_one() {
+    // At one sample a pixel and at many: the estimate reads where the samples land on average,
+    // not how many there are.
+    for n in [64, 16, 4, 1] {
+        let (b, w) = (
+            spread_of(&edges(n, 3, boxed).1),
+            spread_of(&edges(n, 3, wide).1),
+        );
+        assert!(b.edges >= super::across::MIN_EDGES, "box at {n}: {b:?}");
+        assert!(w.edges >= super::across::MIN_EDGES, "wide at {n}: {w:?}");
+        assert!(b.tail < 0.02 && b.share() < 0.005, "box at {n}: {b:?}");
+        assert!(w.tail > 0.15 && w.share() > 0.04, "wide at {n}: {w:?}");
+    }
+    // No straight edge to read (flat features): no spread.
+    let mut set = FeatureSet::default();
+    set.set(Feature::Albedo, Image::filled(64, 64, 3, 0.5))
+        .unwrap();
+    let flat = spread_of(&set);
+    assert_eq!((flat.edges, flat.share()), (0, 0.0));
+}
+
+fn across(color: &Image, set: &FeatureSet, noise: f32) -> Image {
+    let guide = Guide::new(set, color.dims()).expect("an albedo");
+    let dirs = normals(&guide);
+    let share = super::spread(&guide, &dirs).share();
+    let variance = Image::filled(color.dims().0, color.dims().1, 3, noise);
+    super::across_edges(
+        color,
+        &variance,
+        &guide,
+        &dirs,
+        (share, 1.0),
+        &Meter::default(),
+    )
+}
+
+/// The squared error of the columns beside the edges (the pixel each edge crosses and one each
+/// side) against the many-sample render of the same filter.
+fn edge_error(img: &Image, truth: &Image) -> f64 {
+    let mut e = 0.0;
+    for y in 4..60 {
+        for x in [9, 10, 11, 25, 26, 27, 41, 42, 43] {
+            e += (img.pixel(y * 64 + x)[0] as f64 - truth.pixel(y * 64 + x)[0] as f64).powi(2);
+        }
+    }
+    e
+}
+
+#[test]
+fn a_wide_filters_edges_of_one_sample_move_towards_its_mix() {
+    let (color, set) = edges(1, 5, wide);
+    let truth = edges(4096, 9, wide).0;
+    let out = across(&color, &set, 0.2);
+    let (before, after) = (edge_error(&color, &truth), edge_error(&out, &truth));
+    assert!(after < 0.9 * before, "error {before} → {after}");
+}
+
+#[test]
+fn a_box_filters_sharp_edges_pass_unchanged() {
+    let (color, set) = edges(1, 5, boxed);
+    assert_eq!(across(&color, &set, 0.2), color);
+    let (color, set) = edges(64, 5, boxed);
+    assert_eq!(across(&color, &set, 0.2), color);
+}
+
+#[test]
+fn across_without_noise_nothing_moves() {
+    let (color, set) = edges(1, 5, wide);
+    assert_eq!(across(&color, &set, 0.0), color);
+}
+
+#[test]
+fn across_gives_the_same_bits_on_one_and_two_threads() {
+    let (color, set) = edges(1, 5, wide);
+    let on = |threads| {
+        crate::options::thread_pool(threads)
+            .unwrap()
+            .install(|| (across(&color, &set, 0.2), spread_of(&set)))
+    };
+    assert_eq!(on(1), on(2));
 }
