@@ -11,7 +11,7 @@
 
 use rayon::prelude::*;
 
-use super::orient::{bilinear, mix, Guide};
+use super::orient::{bilinear, colour_planes, gated_move, mix, Guide};
 use crate::filters::noise::measured::clean;
 use crate::image::{par_vec, Image};
 use crate::meter::Meter;
@@ -213,8 +213,7 @@ pub fn across_edges(
     if share <= 0.0 {
         return color.par_clone();
     }
-    let planes: [Vec<f32>; 3] =
-        std::array::from_fn(|k| color.data().iter().skip(k).step_by(3).copied().collect());
+    let planes = colour_planes(color);
     let noise: Vec<f64> = variance
         .data()
         .par_chunks_exact(3)
@@ -250,14 +249,7 @@ pub fn across_edges(
                     let (p, m) = (mix(&planes[k], ip, fp), mix(&planes[k], im, fm));
                     share * (p as f64 + m as f64 - 2.0 * px[k] as f64)
                 });
-                let d2 = change.iter().map(|d| d * d).sum::<f64>() / 3.0;
-                if !(d2 > 0.0 && d2.is_finite()) {
-                    continue;
-                }
-                let keep = (tolerance * var / d2).min(1.0);
-                for k in 0..3 {
-                    px[k] = (px[k] as f64 + keep * change[k]).max(0.0) as f32;
-                }
+                gated_move(px, change, var, tolerance);
             }
         });
     Image::from_vec(w, h, 3, out).expect("3 channels a pixel")

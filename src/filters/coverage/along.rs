@@ -12,7 +12,7 @@
 
 use rayon::prelude::*;
 
-use super::orient::{bilinear, mix, Guide};
+use super::orient::{bilinear, colour_planes, gated_move, mix, Guide};
 use crate::filters::noise::measured::clean;
 use crate::image::{par_vec, Image};
 use crate::meter::Meter;
@@ -36,8 +36,7 @@ pub fn along_edges(
     meter: &Meter,
 ) -> Image {
     let (w, h) = color.dims();
-    let planes: [Vec<f32>; 3] =
-        std::array::from_fn(|k| color.data().iter().skip(k).step_by(3).copied().collect());
+    let planes = colour_planes(color);
     let (c, v) = (color.data(), variance.data());
     let mut out = par_vec(0.0f32, 3 * w * h);
     let g = guide.planes.len();
@@ -61,14 +60,7 @@ pub fn along_edges(
                 }
                 let mean = mean_along(&planes, (w, h), pos, normals[i], reach);
                 let change: [f64; 3] = std::array::from_fn(|k| share * (mean[k] - px[k] as f64));
-                let d2 = change.iter().map(|d| d * d).sum::<f64>() / 3.0;
-                if !(d2 > 0.0 && d2.is_finite()) {
-                    continue;
-                }
-                let keep = (tolerance * var / d2).min(1.0);
-                for k in 0..3 {
-                    px[k] = (px[k] as f64 + keep * change[k]).max(0.0) as f32;
-                }
+                gated_move(px, change, var, tolerance);
             }
         },
     );

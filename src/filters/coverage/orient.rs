@@ -3,10 +3,12 @@
 //! The guide is albedo and half the normal stacked (a pixel's surface), so an edge of either
 //! counts. The tensor's gradients are Sobel's and its sums a Gaussian of σ [`TENSOR_SIGMA`]: wide
 //! enough that an edge whose pixels each fell on one side or the other (a few samples a pixel) still
-//! has one direction, narrow enough to follow a curve.
+//! has one direction, narrow enough to follow a curve. Also the reads and the noise-gated move the
+//! along- and across-edge steps share.
 
 use rayon::prelude::*;
 
+use crate::image::Image;
 use crate::render_set::{Feature, FeatureSet};
 
 /// σ, in pixels, of the Gaussian the tensor is summed with.
@@ -78,6 +80,25 @@ pub fn mix(p: &[f32], i: [usize; 4], (fx, fy): (f32, f32)) -> f32 {
     let top = p[i[0]] + fx * (p[i[1]] - p[i[0]]);
     let bottom = p[i[2]] + fx * (p[i[3]] - p[i[2]]);
     top + fy * (bottom - top)
+}
+
+/// A 3-channel image's channels as separate planes, for bilinear reads.
+pub fn colour_planes(color: &Image) -> [Vec<f32>; 3] {
+    std::array::from_fn(|k| color.data().iter().skip(k).step_by(3).copied().collect())
+}
+
+/// Moves `px` by `change`, scaled down where the change's mean square exceeds `tolerance` times
+/// the noise variance `var` (`blend`'s Wiener rule); the result never below 0. No move when the
+/// change is zero or not finite.
+pub fn gated_move(px: &mut [f32], change: [f64; 3], var: f64, tolerance: f64) {
+    let d2 = change.iter().map(|d| d * d).sum::<f64>() / 3.0;
+    if !(d2 > 0.0 && d2.is_finite()) {
+        return;
+    }
+    let keep = (tolerance * var / d2).min(1.0);
+    for (v, d) in px.iter_mut().zip(change) {
+        *v = (*v as f64 + keep * d).max(0.0) as f32;
+    }
 }
 
 /// Per pixel, the unit direction (x, y) across its edge: the structure tensor's main axis.
