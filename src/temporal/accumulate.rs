@@ -79,17 +79,21 @@ const PATCH_REJECT: f64 = 4.0;
 /// Colour agreement of the 3×3 patches around the centre pixel `at` and the neighbour's `there`,
 /// pixel by pixel against twice the centre's estimated noise (`noise`: the variance of one pixel,
 /// from the image): a patch whose structure moved unlike its motion pass (a reflection, a shadow)
-/// differs by more than noise even where the surface is textured.
+/// differs by more than noise even where the surface is textured. `still`: the neighbour's sample
+/// is this pixel itself (nothing moved), and its patch's most different pixel is left out.
 fn patch_agreement(
     centre: &Image,
     noise: &Image,
     (x, y): (usize, usize),
     other: &Image,
     (u, v): (usize, usize),
+    still: bool,
 ) -> f64 {
     let (w, h) = centre.dims();
     let (ow, oh) = other.dims();
-    let (mut diff, mut expected) = (0.0f64, 0.0f64);
+    // Per pixel of the patch: its squared difference and what noise explains of it.
+    let mut cells = [(0.0f64, 0.0f64); 9];
+    let mut n = 0;
     for dy in -1isize..=1 {
         for dx in -1isize..=1 {
             let (cx, cy) = (x as isize + dx, y as isize + dy);
@@ -104,13 +108,34 @@ fn patch_agreement(
             let a = centre.at(cx, cy);
             let b = other.at(nx, ny);
             let s = noise.at(cx, cy);
+            let (mut diff, mut expected) = (0.0f64, 0.0f64);
             for k in 0..3 {
                 let floor = 0.02 * (a[k] as f64).abs() + 1e-6;
                 diff += (a[k] as f64 - b[k] as f64).powi(2);
                 expected += 2.0 * (s[k] as f64).max(0.0) + floor * floor;
             }
+            cells[n] = (diff, expected);
+            n += 1;
         }
     }
+    // The one pixel that differs most is left out: a lone spike in either frame (a rare bright
+    // path, the heavy tail of a glossy highlight's noise) is noise of one pixel, while structure
+    // that moved unlike the motion pass spans several pixels of the patch.
+    // Where nothing moved (the neighbour's sample is this very pixel), the one pixel that differs
+    // most is left out: a lone spike in either frame (a rare bright path, the heavy tail of a
+    // glossy highlight's noise) is noise of one pixel, and structure that changed spans several.
+    // Where the surface moved, a one-pixel difference may be a highlight that moved unlike it.
+    if still && n >= 5 {
+        let ratio = |c: &(f64, f64)| c.0 / c.1.max(f64::MIN_POSITIVE);
+        let worst = (0..n)
+            .max_by(|&a, &b| ratio(&cells[a]).total_cmp(&ratio(&cells[b])))
+            .expect("cells");
+        cells.swap(worst, n - 1);
+        n -= 1;
+    }
+    let (diff, expected) = cells[..n]
+        .iter()
+        .fold((0.0, 0.0), |(d, e), c| (d + c.0, e + c.1));
     if expected <= 0.0 {
         return 1.0;
     }
@@ -273,7 +298,8 @@ fn merge_pixel(
             let Some(there) = nearest(&set.color, pos) else {
                 continue;
             };
-            let mut wt = patch_agreement(&base.color, noise, (x, y), &set.color, there);
+            let still = pos == [x as f32, y as f32];
+            let mut wt = patch_agreement(&base.color, noise, (x, y), &set.color, there, still);
             for (&(f, c), stats) in features.iter().zip(&centre_stats) {
                 if wt <= 0.0 {
                     break;
