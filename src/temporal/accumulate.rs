@@ -263,6 +263,7 @@ pub fn merge(
         offset += c;
     }
     set.noise.variance = Some(pooled(&spreads, &base.features, &noise));
+    set.noise.from_stack = true;
     Merged { set, weights }
 }
 

@@ -10,6 +10,7 @@
 //! noise = "noise"        # the original's variance (a `noise` stage's output)
 //! output = "out"
 //! tolerance = 1.5        # slack for the error of both estimates (the presets use 2)
+//! stack_tolerance = 1.0  # the same for a variance measured from a shot's frames (`--temporal`)
 //! leak = 4.0             # a rise beyond √leak noise σ is light leaked from a neighbour
 //! ```
 
@@ -32,6 +33,10 @@ pub struct BlendParams {
     /// How far the filter's measured change may exceed the noise before the input comes back:
     /// slack for the error of both estimates.
     pub tolerance: f64,
+    /// The same where the render set's variance was measured from a shot's frames (`--temporal`):
+    /// pooled over the window's samples and same-surface neighbours, it needs less slack than the
+    /// image's estimate or a renderer's variance of each pixel's own samples (docs/ALGORITHM.md §10).
+    pub stack_tolerance: f64,
     /// How many noise variances above its input a pixel's filtered value may rise before it
     /// counts as light leaked from a neighbour the features cannot tell apart.
     pub leak: f64,
@@ -43,6 +48,7 @@ impl Default for BlendParams {
             original: COLOR.to_string(),
             noise: "noise".to_string(),
             tolerance: 1.5,
+            stack_tolerance: 1.0,
             leak: 4.0,
         }
     }
@@ -52,7 +58,11 @@ impl BlendParams {
     /// Checks every key against its allowed range; the error names the key. Both factors scale a
     /// variance, so 0 or less would hand back the input everywhere or push past it.
     pub fn validate(&self) -> Result<()> {
-        for (key, value) in [("tolerance", self.tolerance), ("leak", self.leak)] {
+        for (key, value) in [
+            ("tolerance", self.tolerance),
+            ("stack_tolerance", self.stack_tolerance),
+            ("leak", self.leak),
+        ] {
             if !(value > 0.0 && value <= 1e6) {
                 return Err(Error::range(key, value, "above 0, at most 1e6"));
             }
@@ -103,11 +113,16 @@ impl Stage for BlendStage {
             &self.params.original,
             &self.params.noise,
         )?;
+        let tolerance = if buffers.variance_from_stack() {
+            self.params.stack_tolerance
+        } else {
+            self.params.tolerance
+        };
         let keep = keep_weights_metered(
             crate::kernels::simd::Kernel::detect(),
             (original, filtered, variance),
             buffers.features(),
-            (self.params.tolerance, self.params.leak),
+            (tolerance, self.params.leak),
             &ctx.meter,
         );
         ctx.meter.check()?;
