@@ -76,11 +76,22 @@ const PATCH_ACCEPT: f64 = 2.0;
 /// …and where it reaches zero.
 const PATCH_REJECT: f64 = 4.0;
 
+/// Most pixels of a patch left out of the colour test where nothing moved: a spike from each of
+/// the two frames compared.
+const STILL_SPIKES: usize = 2;
+
+/// One pixel of a patch comparison: its squared difference and what noise explains of it.
+#[derive(Clone, Copy, Default)]
+struct Cell {
+    diff: f64,
+    expected: f64,
+}
+
 /// Colour agreement of the 3×3 patches around the centre pixel `at` and the neighbour's `there`,
 /// pixel by pixel against twice the centre's estimated noise (`noise`: the variance of one pixel,
 /// from the image): a patch whose structure moved unlike its motion pass (a reflection, a shadow)
 /// differs by more than noise even where the surface is textured. `still`: the neighbour's sample
-/// is this pixel itself (nothing moved), and its patch's most different pixel is left out.
+/// is this pixel itself (nothing moved), and the patch's most different pixels are left out.
 fn patch_agreement(
     centre: &Image,
     noise: &Image,
@@ -91,8 +102,7 @@ fn patch_agreement(
 ) -> f64 {
     let (w, h) = centre.dims();
     let (ow, oh) = other.dims();
-    // Per pixel of the patch: its squared difference and what noise explains of it.
-    let mut cells = [(0.0f64, 0.0f64); 9];
+    let mut cells = [Cell::default(); 9];
     let mut n = 0;
     for dy in -1isize..=1 {
         for dx in -1isize..=1 {
@@ -108,34 +118,36 @@ fn patch_agreement(
             let a = centre.at(cx, cy);
             let b = other.at(nx, ny);
             let s = noise.at(cx, cy);
-            let (mut diff, mut expected) = (0.0f64, 0.0f64);
+            let cell = &mut cells[n];
             for k in 0..3 {
                 let floor = 0.02 * (a[k] as f64).abs() + 1e-6;
-                diff += (a[k] as f64 - b[k] as f64).powi(2);
-                expected += 2.0 * (s[k] as f64).max(0.0) + floor * floor;
+                cell.diff += (a[k] as f64 - b[k] as f64).powi(2);
+                cell.expected += 2.0 * (s[k] as f64).max(0.0) + floor * floor;
             }
-            cells[n] = (diff, expected);
             n += 1;
         }
     }
-    // The one pixel that differs most is left out: a lone spike in either frame (a rare bright
-    // path, the heavy tail of a glossy highlight's noise) is noise of one pixel, while structure
-    // that moved unlike the motion pass spans several pixels of the patch.
-    // Where nothing moved (the neighbour's sample is this very pixel), the one pixel that differs
-    // most is left out: a lone spike in either frame (a rare bright path, the heavy tail of a
-    // glossy highlight's noise) is noise of one pixel, and structure that changed spans several.
-    // Where the surface moved, a one-pixel difference may be a highlight that moved unlike it.
-    if still && n >= 5 {
-        let ratio = |c: &(f64, f64)| c.0 / c.1.max(f64::MIN_POSITIVE);
-        let worst = (0..n)
-            .max_by(|&a, &b| ratio(&cells[a]).total_cmp(&ratio(&cells[b])))
-            .expect("cells");
-        cells.swap(worst, n - 1);
-        n -= 1;
+    // Where nothing moved (the neighbour's sample is this very pixel), the patch's most different
+    // pixels are left out, as long as five remain: a lone spike in either frame (a rare bright
+    // path, the heavy tail of a glossy highlight's noise) is noise of one pixel, and the two frames
+    // compared may each carry one; structure that changed spans more of the patch. Where the
+    // surface moved, a one-pixel difference may be a highlight that moved unlike it.
+    if still {
+        let ratio = |c: &Cell| c.diff / c.expected.max(f64::MIN_POSITIVE);
+        for _ in 0..STILL_SPIKES {
+            if n < 5 {
+                break;
+            }
+            let worst = (0..n)
+                .max_by(|&a, &b| ratio(&cells[a]).total_cmp(&ratio(&cells[b])))
+                .expect("cells");
+            cells.swap(worst, n - 1);
+            n -= 1;
+        }
     }
     let (diff, expected) = cells[..n]
         .iter()
-        .fold((0.0, 0.0), |(d, e), c| (d + c.0, e + c.1));
+        .fold((0.0, 0.0), |(d, e), c| (d + c.diff, e + c.expected));
     if expected <= 0.0 {
         return 1.0;
     }
