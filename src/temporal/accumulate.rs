@@ -494,6 +494,23 @@ mod tests {
     }
 
     #[test]
+    fn lone_spikes_in_a_still_stack_do_not_shut_out_the_other_frames() {
+        // A rare bright path in the centre frame at (8, 8) and in the next frame at (9, 8), on a
+        // flat surface: noise of one pixel each, so every frame still counts at both and around.
+        let (n, size, h) = (5usize, 16usize, 0.02f64);
+        let mut frames = noisy_stack(n, size, h, |_, _, _| 0.5);
+        frames[2].color.pixel_mut(8 * size + 8).fill(5.0);
+        frames[3].color.pixel_mut(8 * size + 9).fill(5.0);
+        let merged = merge_still(&frames);
+        // (8, 8): its own spike; (8, 9): both spikes in its patch against the next frame.
+        for (x, y) in [(8, 8), (9, 8), (8, 9)] {
+            let mean = frames.iter().map(|f| f.color.at(x, y)[0] as f64).sum::<f64>() / n as f64;
+            let got = merged.set.color.at(x, y)[0] as f64;
+            assert!((got - mean).abs() < 1e-4, "({x}, {y}): {got}, the frames' mean {mean}");
+        }
+    }
+
+    #[test]
     fn a_missing_or_unreachable_frame_adds_nothing() {
         let a = frame(|_, _| 0.3, 0.5);
         let b = frame(|_, _| 0.7, 0.5);

@@ -141,7 +141,41 @@ impl Stage for BlendStage {
 #[cfg(test)]
 mod tests {
     use super::weights::tests::{blend_case, blend_case_keep};
-    use super::BlendParams;
+    use super::*;
+    use crate::image::Image;
+    use crate::render_set::RenderSet;
+
+    /// The blend of `full` (tolerance 2) over a flat colour of noise variance 0.01 whose filtered
+    /// value moved every pixel by 1.5 noise σ, with the variance from a renderer or a stack.
+    fn blended(from_stack: bool) -> Image {
+        let (w, h) = (9, 9);
+        let mut set = RenderSet::new(Image::filled(w, h, 3, 1.0));
+        set.noise.variance = Some(Image::filled(w, h, 3, 0.01));
+        set.noise.from_stack = from_stack;
+        let mut buffers = Buffers::from(set);
+        buffers.insert("out", Image::filled(w, h, 3, 1.15)).unwrap();
+        buffers.insert_same("noise", "variance").unwrap();
+        let table: toml::Table = toml::from_str("tolerance = 2.0").unwrap();
+        let io = StageIo {
+            input: "out".into(),
+            output: "out".into(),
+        };
+        let stage = BlendStage::from_table("blend", io, table).unwrap();
+        let mut ctx = Context::new(0, false);
+        stage.execute(&mut buffers, &mut ctx).unwrap();
+        buffers.get("out").unwrap().clone()
+    }
+
+    #[test]
+    fn a_stack_measured_variance_takes_the_colour_back_without_the_slack() {
+        // The filter's change is more than its noise explains, so part of the colour comes back
+        // under either; against a stack's measured variance, with tolerance 1 instead of 2, twice
+        // as much of the change is given back.
+        let renderer = blended(false).at(4, 4)[0] as f64 - 1.0;
+        let stack = blended(true).at(4, 4)[0] as f64 - 1.0;
+        assert!(renderer < 0.9 * 0.15, "kept {renderer} of 0.15");
+        assert!((stack / renderer - 0.5).abs() < 1e-3, "{stack} against {renderer}");
+    }
 
     #[test]
     fn a_rise_beyond_two_sigma_is_taken_back() {
