@@ -504,9 +504,16 @@ mod tests {
         let merged = merge_still(&frames);
         // (8, 8): its own spike; (8, 9): both spikes in its patch against the next frame.
         for (x, y) in [(8, 8), (9, 8), (8, 9)] {
-            let mean = frames.iter().map(|f| f.color.at(x, y)[0] as f64).sum::<f64>() / n as f64;
+            let mean = frames
+                .iter()
+                .map(|f| f.color.at(x, y)[0] as f64)
+                .sum::<f64>()
+                / n as f64;
             let got = merged.set.color.at(x, y)[0] as f64;
-            assert!((got - mean).abs() < 1e-4, "({x}, {y}): {got}, the frames' mean {mean}");
+            assert!(
+                (got - mean).abs() < 1e-4,
+                "({x}, {y}): {got}, the frames' mean {mean}"
+            );
         }
     }
 

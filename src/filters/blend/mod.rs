@@ -174,7 +174,10 @@ mod tests {
         let renderer = blended(false).at(4, 4)[0] as f64 - 1.0;
         let stack = blended(true).at(4, 4)[0] as f64 - 1.0;
         assert!(renderer < 0.9 * 0.15, "kept {renderer} of 0.15");
-        assert!((stack / renderer - 0.5).abs() < 1e-3, "{stack} against {renderer}");
+        assert!(
+            (stack / renderer - 0.5).abs() < 1e-3,
+            "{stack} against {renderer}"
+        );
     }
 
     #[test]
