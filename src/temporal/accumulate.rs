@@ -518,6 +518,25 @@ mod tests {
     }
 
     #[test]
+    fn a_lone_spike_where_the_surface_moved_still_keeps_its_own_frame() {
+        // The same spike on a surface that moves a pixel a frame: there a one-pixel difference
+        // may be a highlight that moved unlike its surface, so no neighbour is taken at it.
+        let (n, size, h) = (5usize, 16usize, 0.02f64);
+        let mut frames = noisy_stack(n, size, h, |_, _, _| 0.5);
+        frames[2].color.pixel_mut(8 * size + 8).fill(5.0);
+        let refs: Vec<Option<&RenderSet>> = frames.iter().map(Some).collect();
+        let tracks: Vec<Option<Vec<[f32; 2]>>> = (0..n)
+            .map(|k| {
+                let shift = k as f32 - 2.0;
+                let at = |i: usize| [(i % size) as f32 + shift, (i / size) as f32];
+                Some((0..size * size).map(at).collect())
+            })
+            .collect();
+        let merged = merge(&refs, &tracks, 2);
+        assert_eq!(merged.set.color.at(8, 8), frames[2].color.at(8, 8));
+    }
+
+    #[test]
     fn a_missing_or_unreachable_frame_adds_nothing() {
         let a = frame(|_, _| 0.3, 0.5);
         let b = frame(|_, _| 0.7, 0.5);
