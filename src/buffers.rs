@@ -23,11 +23,18 @@ pub struct Buffers {
     /// Names that read a created buffer (name → its target) until either is written: a stage that
     /// passes a buffer on unchanged (the `noise` stage's `reuse`) costs no copy.
     shared: BTreeMap<String, String>,
+    /// The render set's `variance` was measured from a shot's frames (`NoiseInputs::from_stack`).
+    variance_from_stack: bool,
 }
 
 impl From<RenderSet> for Buffers {
     fn from(set: RenderSet) -> Self {
-        let NoiseInputs { variance, halves } = set.noise;
+        let NoiseInputs {
+            variance,
+            halves,
+            from_stack,
+        } = set.noise;
+        let from_stack = from_stack && variance.is_some();
         let variance = variance.map(|v| (NoiseInputs::VARIANCE.to_string(), v));
         let halves = halves
             .into_iter()
@@ -38,6 +45,7 @@ impl From<RenderSet> for Buffers {
             features: set.features,
             created,
             shared: BTreeMap::new(),
+            variance_from_stack: from_stack,
         }
     }
 }
@@ -45,6 +53,11 @@ impl From<RenderSet> for Buffers {
 impl Buffers {
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// Whether the render set's `variance` was measured from a shot's frames (`--temporal`).
+    pub fn variance_from_stack(&self) -> bool {
+        self.variance_from_stack
     }
 
     /// The render set's feature buffers, typed.

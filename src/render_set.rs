@@ -159,6 +159,9 @@ pub struct NoiseInputs {
     pub variance: Option<Image>,
     /// Colour from two independent halves of the samples (buffers `color_a`, `color_b`).
     pub halves: Option<[Image; 2]>,
+    /// `variance` was measured from a shot's frames (`--temporal`), pooled over their samples and
+    /// same-surface neighbours, not written by a renderer from each pixel's own few samples.
+    pub from_stack: bool,
 }
 
 impl NoiseInputs {

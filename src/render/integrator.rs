@@ -361,6 +361,7 @@ pub fn render(
         noise: NoiseInputs {
             variance: measured.then_some(variance),
             halves: measured.then_some([a, b]),
+            from_stack: false,
         },
         sample_variance: measured.then_some(sample_variance),
         stats,

@@ -76,20 +76,34 @@ const PATCH_ACCEPT: f64 = 2.0;
 /// …and where it reaches zero.
 const PATCH_REJECT: f64 = 4.0;
 
+/// Most pixels of a patch left out of the colour test where nothing moved: a spike from each of
+/// the two frames compared.
+const STILL_SPIKES: usize = 2;
+
+/// One pixel of a patch comparison: its squared difference and what noise explains of it.
+#[derive(Clone, Copy, Default)]
+struct Cell {
+    diff: f64,
+    expected: f64,
+}
+
 /// Colour agreement of the 3×3 patches around the centre pixel `at` and the neighbour's `there`,
 /// pixel by pixel against twice the centre's estimated noise (`noise`: the variance of one pixel,
 /// from the image): a patch whose structure moved unlike its motion pass (a reflection, a shadow)
-/// differs by more than noise even where the surface is textured.
+/// differs by more than noise even where the surface is textured. `still`: the neighbour's sample
+/// is this pixel itself (nothing moved), and the patch's most different pixels are left out.
 fn patch_agreement(
     centre: &Image,
     noise: &Image,
     (x, y): (usize, usize),
     other: &Image,
     (u, v): (usize, usize),
+    still: bool,
 ) -> f64 {
     let (w, h) = centre.dims();
     let (ow, oh) = other.dims();
-    let (mut diff, mut expected) = (0.0f64, 0.0f64);
+    let mut cells = [Cell::default(); 9];
+    let mut n = 0;
     for dy in -1isize..=1 {
         for dx in -1isize..=1 {
             let (cx, cy) = (x as isize + dx, y as isize + dy);
@@ -104,13 +118,36 @@ fn patch_agreement(
             let a = centre.at(cx, cy);
             let b = other.at(nx, ny);
             let s = noise.at(cx, cy);
+            let cell = &mut cells[n];
             for k in 0..3 {
                 let floor = 0.02 * (a[k] as f64).abs() + 1e-6;
-                diff += (a[k] as f64 - b[k] as f64).powi(2);
-                expected += 2.0 * (s[k] as f64).max(0.0) + floor * floor;
+                cell.diff += (a[k] as f64 - b[k] as f64).powi(2);
+                cell.expected += 2.0 * (s[k] as f64).max(0.0) + floor * floor;
             }
+            n += 1;
         }
     }
+    // Where nothing moved (the neighbour's sample is this very pixel), the patch's most different
+    // pixels are left out, as long as five remain: a lone spike in either frame (a rare bright
+    // path, the heavy tail of a glossy highlight's noise) is noise of one pixel, and the two frames
+    // compared may each carry one; structure that changed spans more of the patch. Where the
+    // surface moved, a one-pixel difference may be a highlight that moved unlike it.
+    if still {
+        let ratio = |c: &Cell| c.diff / c.expected.max(f64::MIN_POSITIVE);
+        for _ in 0..STILL_SPIKES {
+            if n < 5 {
+                break;
+            }
+            let worst = (0..n)
+                .max_by(|&a, &b| ratio(&cells[a]).total_cmp(&ratio(&cells[b])))
+                .expect("cells");
+            cells.swap(worst, n - 1);
+            n -= 1;
+        }
+    }
+    let (diff, expected) = cells[..n]
+        .iter()
+        .fold((0.0, 0.0), |(d, e), c| (d + c.diff, e + c.expected));
     if expected <= 0.0 {
         return 1.0;
     }
@@ -238,6 +275,7 @@ pub fn merge(
         offset += c;
     }
     set.noise.variance = Some(pooled(&spreads, &base.features, &noise));
+    set.noise.from_stack = true;
     Merged { set, weights }
 }
 
@@ -273,7 +311,8 @@ fn merge_pixel(
             let Some(there) = nearest(&set.color, pos) else {
                 continue;
             };
-            let mut wt = patch_agreement(&base.color, noise, (x, y), &set.color, there);
+            let still = pos == [x as f32, y as f32];
+            let mut wt = patch_agreement(&base.color, noise, (x, y), &set.color, there, still);
             for (&(f, c), stats) in features.iter().zip(&centre_stats) {
                 if wt <= 0.0 {
                     break;
@@ -452,6 +491,49 @@ mod tests {
                 assert!((v / one_frame - 1.0).abs() < 0.5, "({x}, {y}): {v}");
             }
         }
+    }
+
+    #[test]
+    fn lone_spikes_in_a_still_stack_do_not_shut_out_the_other_frames() {
+        // A rare bright path in the centre frame at (8, 8) and in the next frame at (9, 8), on a
+        // flat surface: noise of one pixel each, so every frame still counts at both and around.
+        let (n, size, h) = (5usize, 16usize, 0.02f64);
+        let mut frames = noisy_stack(n, size, h, |_, _, _| 0.5);
+        frames[2].color.pixel_mut(8 * size + 8).fill(5.0);
+        frames[3].color.pixel_mut(8 * size + 9).fill(5.0);
+        let merged = merge_still(&frames);
+        // (8, 8): its own spike; (8, 9): both spikes in its patch against the next frame.
+        for (x, y) in [(8, 8), (9, 8), (8, 9)] {
+            let mean = frames
+                .iter()
+                .map(|f| f.color.at(x, y)[0] as f64)
+                .sum::<f64>()
+                / n as f64;
+            let got = merged.set.color.at(x, y)[0] as f64;
+            assert!(
+                (got - mean).abs() < 1e-4,
+                "({x}, {y}): {got}, the frames' mean {mean}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_lone_spike_where_the_surface_moved_still_keeps_its_own_frame() {
+        // The same spike on a surface that moves a pixel a frame: there a one-pixel difference
+        // may be a highlight that moved unlike its surface, so no neighbour is taken at it.
+        let (n, size, h) = (5usize, 16usize, 0.02f64);
+        let mut frames = noisy_stack(n, size, h, |_, _, _| 0.5);
+        frames[2].color.pixel_mut(8 * size + 8).fill(5.0);
+        let refs: Vec<Option<&RenderSet>> = frames.iter().map(Some).collect();
+        let tracks: Vec<Option<Vec<[f32; 2]>>> = (0..n)
+            .map(|k| {
+                let shift = k as f32 - 2.0;
+                let at = |i: usize| [(i % size) as f32 + shift, (i / size) as f32];
+                Some((0..size * size).map(at).collect())
+            })
+            .collect();
+        let merged = merge(&refs, &tracks, 2);
+        assert_eq!(merged.set.color.at(8, 8), frames[2].color.at(8, 8));
     }
 
     #[test]

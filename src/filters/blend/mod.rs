@@ -10,6 +10,7 @@
 //! noise = "noise"        # the original's variance (a `noise` stage's output)
 //! output = "out"
 //! tolerance = 1.5        # slack for the error of both estimates (the presets use 2)
+//! stack_tolerance = 1.0  # the same for a variance measured from a shot's frames (`--temporal`)
 //! leak = 4.0             # a rise beyond √leak noise σ is light leaked from a neighbour
 //! ```
 
@@ -32,6 +33,10 @@ pub struct BlendParams {
     /// How far the filter's measured change may exceed the noise before the input comes back:
     /// slack for the error of both estimates.
     pub tolerance: f64,
+    /// The same where the render set's variance was measured from a shot's frames (`--temporal`):
+    /// pooled over the window's samples and same-surface neighbours, it needs less slack than the
+    /// image's estimate or a renderer's variance of each pixel's own samples (docs/ALGORITHM.md §10).
+    pub stack_tolerance: f64,
     /// How many noise variances above its input a pixel's filtered value may rise before it
     /// counts as light leaked from a neighbour the features cannot tell apart.
     pub leak: f64,
@@ -43,6 +48,7 @@ impl Default for BlendParams {
             original: COLOR.to_string(),
             noise: "noise".to_string(),
             tolerance: 1.5,
+            stack_tolerance: 1.0,
             leak: 4.0,
         }
     }
@@ -52,7 +58,11 @@ impl BlendParams {
     /// Checks every key against its allowed range; the error names the key. Both factors scale a
     /// variance, so 0 or less would hand back the input everywhere or push past it.
     pub fn validate(&self) -> Result<()> {
-        for (key, value) in [("tolerance", self.tolerance), ("leak", self.leak)] {
+        for (key, value) in [
+            ("tolerance", self.tolerance),
+            ("stack_tolerance", self.stack_tolerance),
+            ("leak", self.leak),
+        ] {
             if !(value > 0.0 && value <= 1e6) {
                 return Err(Error::range(key, value, "above 0, at most 1e6"));
             }
@@ -103,11 +113,16 @@ impl Stage for BlendStage {
             &self.params.original,
             &self.params.noise,
         )?;
+        let tolerance = if buffers.variance_from_stack() {
+            self.params.stack_tolerance
+        } else {
+            self.params.tolerance
+        };
         let keep = keep_weights_metered(
             crate::kernels::simd::Kernel::detect(),
             (original, filtered, variance),
             buffers.features(),
-            (self.params.tolerance, self.params.leak),
+            (tolerance, self.params.leak),
             &ctx.meter,
         );
         ctx.meter.check()?;
@@ -126,7 +141,44 @@ impl Stage for BlendStage {
 #[cfg(test)]
 mod tests {
     use super::weights::tests::{blend_case, blend_case_keep};
-    use super::BlendParams;
+    use super::*;
+    use crate::image::Image;
+    use crate::render_set::RenderSet;
+
+    /// The blend of `full` (tolerance 2) over a flat colour of noise variance 0.01 whose filtered
+    /// value moved every pixel by 1.5 noise σ, with the variance from a renderer or a stack.
+    fn blended(from_stack: bool) -> Image {
+        let (w, h) = (9, 9);
+        let mut set = RenderSet::new(Image::filled(w, h, 3, 1.0));
+        set.noise.variance = Some(Image::filled(w, h, 3, 0.01));
+        set.noise.from_stack = from_stack;
+        let mut buffers = Buffers::from(set);
+        buffers.insert("out", Image::filled(w, h, 3, 1.15)).unwrap();
+        buffers.insert_same("noise", "variance").unwrap();
+        let table: toml::Table = toml::from_str("tolerance = 2.0").unwrap();
+        let io = StageIo {
+            input: "out".into(),
+            output: "out".into(),
+        };
+        let stage = BlendStage::from_table("blend", io, table).unwrap();
+        let mut ctx = Context::new(0, false);
+        stage.execute(&mut buffers, &mut ctx).unwrap();
+        buffers.get("out").unwrap().clone()
+    }
+
+    #[test]
+    fn a_stack_measured_variance_takes_the_colour_back_without_the_slack() {
+        // The filter's change is more than its noise explains, so part of the colour comes back
+        // under either; against a stack's measured variance, with tolerance 1 instead of 2, twice
+        // as much of the change is given back.
+        let renderer = blended(false).at(4, 4)[0] as f64 - 1.0;
+        let stack = blended(true).at(4, 4)[0] as f64 - 1.0;
+        assert!(renderer < 0.9 * 0.15, "kept {renderer} of 0.15");
+        assert!(
+            (stack / renderer - 0.5).abs() < 1e-3,
+            "{stack} against {renderer}"
+        );
+    }
 
     #[test]
     fn a_rise_beyond_two_sigma_is_taken_back() {
