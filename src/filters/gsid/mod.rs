@@ -1,5 +1,6 @@
 //! The `gsid` stage: feature-guided random-walk denoising (SID when only the colour weight is set).
 
+pub mod guide;
 pub mod walk;
 
 use serde::{Deserialize, Serialize};
@@ -46,6 +47,10 @@ pub struct GsidParams {
     /// How far each pixel's colour difference follows its own noise, besides σ following the
     /// image's (`crate::filters::noise::color_scales`; 0: one σ for the whole image).
     pub local_noise: f32,
+    /// k of the colour the walks compare (`guide::color_guide`): the colour after an NL-means
+    /// pass whose 3×3 patch distance counts in noise σ of `noise`, so a reflected or refracted
+    /// edge the features do not show stays while the noise goes; 0: the colour as it is.
+    pub color_guide: f32,
 }
 
 impl Default for GsidParams {
@@ -67,6 +72,7 @@ impl Default for GsidParams {
             noise_ref: 0.04,
             noise_power: 1.0,
             local_noise: 0.0,
+            color_guide: 0.0,
         }
     }
 }
@@ -116,6 +122,20 @@ impl GsidParams {
                 "exposure",
                 self.exposure,
                 "above 0, at most 1e6",
+            ));
+        }
+        if !(0.0..=10.0).contains(&self.color_guide) {
+            return Err(Error::range(
+                "color_guide",
+                self.color_guide,
+                "0 (off) to 10",
+            ));
+        }
+        if self.color_guide > 0.0 && self.noise.is_none() {
+            return Err(Error::range(
+                "color_guide",
+                self.color_guide,
+                "0 without `noise` (the guide counts in the noise it names)",
             ));
         }
         self.scaling().validate()?;
@@ -188,8 +208,21 @@ pub fn run_gsid(
         .scaling()
         .color_scales(buffers, color, params.exposure)?;
     ctx.meter.check()?;
+    let guide = match params.noise.as_deref().filter(|_| params.color_guide > 0.0) {
+        Some(name) => {
+            let variance = buffers.get_sized(name, 3, color.dims())?.ok_or_else(|| {
+                Error::buffer(
+                    name,
+                    "is required (the stage's `noise`) but missing; a `noise` stage writes it",
+                )
+            })?;
+            guide::color_guide(color, variance, params.color_guide as f64, &ctx.meter)
+        }
+        None => None,
+    };
+    ctx.meter.check()?;
     let recipe = Recipe::new(
-        color,
+        guide.as_ref().unwrap_or(color),
         buffers.features(),
         &params.weights,
         params.tone,
