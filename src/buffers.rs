@@ -25,6 +25,8 @@ pub struct Buffers {
     shared: BTreeMap<String, String>,
     /// The render set's `variance` was measured from a shot's frames (`NoiseInputs::from_stack`).
     variance_from_stack: bool,
+    /// The colour was merged from neighbours resampled between pixels (`NoiseInputs::resampled`).
+    resampled: bool,
 }
 
 impl From<RenderSet> for Buffers {
@@ -33,6 +35,7 @@ impl From<RenderSet> for Buffers {
             variance,
             halves,
             from_stack,
+            resampled,
         } = set.noise;
         let from_stack = from_stack && variance.is_some();
         let variance = variance.map(|v| (NoiseInputs::VARIANCE.to_string(), v));
@@ -46,6 +49,7 @@ impl From<RenderSet> for Buffers {
             created,
             shared: BTreeMap::new(),
             variance_from_stack: from_stack,
+            resampled,
         }
     }
 }
@@ -58,6 +62,12 @@ impl Buffers {
     /// Whether the render set's `variance` was measured from a shot's frames (`--temporal`).
     pub fn variance_from_stack(&self) -> bool {
         self.variance_from_stack
+    }
+
+    /// Whether the colour was merged from neighbours resampled between pixels (`--temporal` on a
+    /// shot that moved).
+    pub fn resampled(&self) -> bool {
+        self.resampled
     }
 
     /// The render set's feature buffers, typed.

@@ -162,6 +162,9 @@ pub struct NoiseInputs {
     /// `variance` was measured from a shot's frames (`--temporal`), pooled over their samples and
     /// same-surface neighbours, not written by a renderer from each pixel's own few samples.
     pub from_stack: bool,
+    /// The colour was merged from neighbours resampled between pixels (a `--temporal` frame whose
+    /// neighbours moved): its edges already carry the resampling's spread.
+    pub resampled: bool,
 }
 
 impl NoiseInputs {

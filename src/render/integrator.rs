@@ -362,6 +362,7 @@ pub fn render(
             variance: measured.then_some(variance),
             halves: measured.then_some([a, b]),
             from_stack: false,
+            resampled: false,
         },
         sample_variance: measured.then_some(sample_variance),
         stats,

@@ -276,6 +276,13 @@ pub fn merge(
     }
     set.noise.variance = Some(pooled(&spreads, &base.features, &noise));
     set.noise.from_stack = true;
+    // Any neighbour read between pixels softens the merged edges (bilinear taps).
+    set.noise.resampled = used.iter().any(|&(j, _, track)| {
+        j != centre
+            && track
+                .iter()
+                .any(|p| p.iter().all(|v| v.is_finite()) && p.iter().any(|v| v.fract() != 0.0))
+    });
     Merged { set, weights }
 }
 
@@ -437,6 +444,22 @@ mod tests {
         (0..w * h)
             .map(|i| v.pixel(i).iter().map(|&v| v as f64).sum::<f64>() / 3.0)
             .collect()
+    }
+
+    #[test]
+    fn a_stack_read_between_pixels_says_so_and_a_whole_pixel_one_does_not() {
+        let frames = noisy_stack(3, 8, 0.1, |_, _, _| 0.5);
+        assert!(!merge_still(&frames).set.noise.resampled);
+        let refs: Vec<Option<&RenderSet>> = frames.iter().map(Some).collect();
+        let moved = |dx: f32| -> Vec<[f32; 2]> {
+            (0..64)
+                .map(|i| [(i % 8) as f32 + dx, (i / 8) as f32])
+                .collect()
+        };
+        let tracks = |dx| vec![Some(moved(dx)), Some(moved(0.0)), Some(moved(dx))];
+        // One pixel over: whole-pixel reads, edges as sharp as the frame's own.
+        assert!(!merge(&refs, &tracks(1.0), 1).set.noise.resampled);
+        assert!(merge(&refs, &tracks(0.5), 1).set.noise.resampled);
     }
 
     #[test]

@@ -23,6 +23,7 @@
 //! reach = 1            # pixels read each way along the edge
 //! tolerance = 1.0      # slack on the noise, as `blend`'s
 //! across = true        # spread across edges as the renderer's filter does (estimated)
+//! stack_across = false # and on a `--temporal` frame that moved (its merge already spreads edges)
 //! ```
 
 mod across;
@@ -52,6 +53,11 @@ pub struct CoverageParams {
     /// filter spreads the features' edges (estimated per image; none for a box filter). Costs a
     /// pass over the edge pixels.
     pub across: bool,
+    /// The across-edge spread on a `--temporal` frame whose neighbours were resampled between
+    /// pixels (the shot moved) too. Off by default: that merged colour is a mean of bilinear reads
+    /// whose edges already carry the resampling's spread, and spreading them again by the
+    /// renderer's filter softens them twice. A still shot merges whole pixels and keeps the step.
+    pub stack_across: bool,
 }
 
 impl Default for CoverageParams {
@@ -61,6 +67,7 @@ impl Default for CoverageParams {
             reach: 1,
             tolerance: 1.0,
             across: true,
+            stack_across: false,
         }
     }
 }
@@ -145,7 +152,7 @@ impl Stage for CoverageStage {
             &ctx.meter,
         );
         ctx.meter.check()?;
-        let out = if p.across {
+        let out = if p.across && (p.stack_across || !buffers.resampled()) {
             let share = spread(&guide, &dirs).share();
             across_edges(
                 &out,

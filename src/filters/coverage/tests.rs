@@ -290,3 +290,41 @@ fn across_gives_the_same_bits_on_one_and_two_threads() {
     };
     assert_eq!(on(1), on(2));
 }
+
+/// The `coverage` stage (keys `table`) on one-sample edges of a wide filter, alone or as a
+/// `--temporal` frame merged from neighbours resampled between pixels.
+fn staged(table: &str, resampled: bool) -> Image {
+    use crate::buffers::Buffers;
+    use crate::filters::stage::{Context, Stage, StageIo};
+    use crate::render_set::RenderSet;
+    let (color, features) = edges(1, 5, wide);
+    let (w, h) = color.dims();
+    let mut set = RenderSet::new(color.clone());
+    set.features = features;
+    set.noise.variance = Some(Image::filled(w, h, 3, 0.2));
+    set.noise.from_stack = resampled;
+    set.noise.resampled = resampled;
+    let mut buffers = Buffers::from(set);
+    buffers.insert("out", color).unwrap();
+    buffers.insert_same("noise", "variance").unwrap();
+    let io = StageIo {
+        input: "out".into(),
+        output: "out".into(),
+    };
+    let stage =
+        super::CoverageStage::from_table("coverage", io, toml::from_str(table).unwrap()).unwrap();
+    stage
+        .execute(&mut buffers, &mut Context::new(0, false))
+        .unwrap();
+    buffers.get("out").unwrap().clone()
+}
+
+#[test]
+fn a_resampled_temporal_frame_skips_the_across_spread_unless_asked() {
+    let renderer = staged("", false);
+    let along_only = staged("across = false", false);
+    assert_ne!(renderer, along_only, "the case must show the across spread");
+    // A `--temporal` frame whose neighbours moved: its edges already carry the resampling's spread.
+    assert_eq!(staged("", true), along_only);
+    assert_eq!(staged("stack_across = true", true), renderer);
+}
