@@ -68,7 +68,7 @@ pub fn spread(guide: &Guide, normals: &[(f32, f32)]) -> Spread {
     let rows: Vec<(f64, usize)> = (0..h)
         .into_par_iter()
         .map_init(
-            || vec![0.0f64; (2 * REACH + 1) * guide.planes.len()],
+            || vec![0.0f64; (2 * REACH + 2) * guide.planes.len()],
             |profile, y| {
                 let mut sum = (0.0f64, 0usize);
                 for x in 0..w {
@@ -89,12 +89,13 @@ pub fn spread(guide: &Guide, normals: &[(f32, f32)]) -> Spread {
     }
 }
 
-/// The tail of the edge through pixel `(x, y)`, if it is one the estimate reads.
+/// The tail of the edge through pixel `(x, y)`, if it is one the estimate reads. `scratch` holds
+/// `2·REACH + 2` guide pixels.
 fn edge_tail(
     guide: &Guide,
     (x, y): (usize, usize),
     (nx, ny): (f32, f32),
-    profile: &mut [f64],
+    scratch: &mut [f64],
 ) -> Option<f64> {
     let (w, h) = (guide.w, guide.h);
     let g = guide.planes.len();
@@ -126,12 +127,16 @@ fn edge_tail(
         }
     };
     let n = 2 * REACH + 1;
+    // The profile's n points, then the first point minus the last (one edge's sides).
+    let (profile, ab) = scratch.split_at_mut(n * g);
     for k in [0, n - 1] {
         read(k, &mut profile[k * g..(k + 1) * g]);
     }
-    let (first, rest) = profile.split_at_mut(g);
-    let last = &rest[(n - 2) * g..];
-    let ab: Vec<f64> = first.iter().zip(last).map(|(a, b)| a - b).collect();
+    let (first, rest) = profile.split_at(g);
+    for ((d, a), b) in ab.iter_mut().zip(first).zip(&rest[(n - 2) * g..]) {
+        *d = a - b;
+    }
+    let ab = &*ab;
     let contrast: f64 = ab.iter().map(|d| d * d).sum();
     if contrast.is_nan() || contrast < CONTRAST {
         return None;
@@ -146,14 +151,14 @@ fn edge_tail(
         let q = p
             .iter()
             .zip(b)
-            .zip(&ab)
+            .zip(ab)
             .map(|((p, b), d)| (p - b) * d)
             .sum::<f64>()
             / contrast;
         let off: f64 = p
             .iter()
             .zip(b)
-            .zip(&ab)
+            .zip(ab)
             .map(|((p, b), d)| (p - b - q * d).powi(2))
             .sum();
         if off > OFF_LINE * contrast {
