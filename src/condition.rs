@@ -320,12 +320,17 @@ impl Conditioning {
         } else {
             // A scale below 1/f32::MAX (a render near f32's top, brightness ~3e37) has no f32
             // inverse: multiply in f64, where it has one, and round once.
-            let inverse = 1.0 / self.scale as f64;
-            img.data_mut()
-                .par_iter_mut()
-                .for_each(|v| *v = (*v as f64 * inverse) as f32);
+            scale_image_f64(img, 1.0 / self.scale as f64);
         }
     }
+}
+
+/// Every value times `factor` in f64, rounded once: for factors (or their products) that f32 cannot
+/// hold.
+pub(crate) fn scale_image_f64(img: &mut Image, factor: f64) {
+    img.data_mut()
+        .par_iter_mut()
+        .for_each(|v| *v = (*v as f64 * factor) as f32);
 }
 
 fn scale_image(img: &mut Image, factor: f32) {

@@ -6,7 +6,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::buffers::{Buffers, COLOR};
-use crate::condition::{check_recorded, Conditioning, SanitizeReport};
+use crate::condition::{check_recorded, scale_image_f64, Conditioning, SanitizeReport};
 use crate::error::{Error, Result};
 use crate::filters::stage::{steps_per_pixel_allowed, MAX_STEPS_PER_PIXEL};
 use crate::filters::{self, Context, Stage, StageReport};
@@ -175,9 +175,7 @@ impl Pipeline {
             return std::borrow::Cow::Borrowed(buffer);
         }
         let mut out = buffer.clone();
-        for v in out.data_mut() {
-            *v = (*v as f64 * factor) as f32;
-        }
+        scale_image_f64(&mut out, factor);
         std::borrow::Cow::Owned(out)
     }
 
