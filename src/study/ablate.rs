@@ -89,8 +89,20 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
             out.push(Variant { name, spec: v });
         }
     }
-    out.extend(median_centre_variants(spec)?);
-    out.extend(across_variants(spec)?);
+    // A `reliability` stage's surface mean against its median centre; a `coverage` stage's
+    // across-edge spread (the renderer's estimated pixel-filter width) against none.
+    out.extend(switched_variants(
+        spec,
+        ("reliability", "centre"),
+        ("mean".into(), "median".into()),
+        "with median centres",
+    )?);
+    out.extend(switched_variants(
+        spec,
+        ("coverage", "across"),
+        (true.into(), false.into()),
+        "without the across-edge spread",
+    )?);
     out.extend(noise_variants(spec)?);
     let paths = feature_paths(spec);
     if !paths.is_empty() {
@@ -112,38 +124,23 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
     Ok(out)
 }
 
-/// For every `reliability` stage that pulls noisy pixels towards their surface's mean (the default),
-/// the row with its median centre instead: what the surface mean buys.
-fn median_centre_variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
+/// For every stage of `kind` whose `key` is at its `default` (or unset), the row with `other`
+/// instead, named "<stage> <label>": what that default buys.
+fn switched_variants(
+    spec: &PipelineSpec,
+    (kind, key): (&str, &str),
+    (default, other): (toml::Value, toml::Value),
+    label: &str,
+) -> Result<Vec<Variant>> {
     let mut out = Vec::new();
     for (i, stage) in spec.stages.iter().enumerate() {
-        let centre = stage.params.get("centre").and_then(toml::Value::as_str);
-        if stage.kind != "reliability" || centre.is_some_and(|c| c != "mean") {
+        if stage.kind != kind || stage.params.get(key).is_some_and(|v| *v != default) {
             continue;
         }
         let mut v = spec.clone();
-        v.stages[i].set(&["centre"], toml::Value::String("median".into()))?;
+        v.stages[i].set(&[key], other.clone())?;
         out.push(Variant {
-            name: format!("{} with median centres", stage.id),
-            spec: v,
-        });
-    }
-    Ok(out)
-}
-
-/// For every `coverage` stage that spreads colour across edges (the default), the row without that
-/// spread: what the renderer's estimated pixel-filter width buys.
-fn across_variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
-    let mut out = Vec::new();
-    for (i, stage) in spec.stages.iter().enumerate() {
-        let across = stage.params.get("across").and_then(toml::Value::as_bool);
-        if stage.kind != "coverage" || across == Some(false) {
-            continue;
-        }
-        let mut v = spec.clone();
-        v.stages[i].set(&["across"], toml::Value::Boolean(false))?;
-        out.push(Variant {
-            name: format!("{} without the across-edge spread", stage.id),
+            name: format!("{} {label}", stage.id),
             spec: v,
         });
     }
