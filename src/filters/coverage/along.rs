@@ -69,7 +69,7 @@ pub fn along_edges(
                 px.copy_from_slice(&c[3 * i..3 * i + 3]);
                 let var = v[3 * i..3 * i + 3].iter().map(|&s| clean(s)).sum::<f64>() / 3.0;
                 let pos = (x as f32, y as f32);
-                let share = jump_share(guide, pos, normals[i], reach, scratch);
+                let share = jump_share(guide, pos, normals[i], reach, gate, scratch);
                 if share <= 0.0 || var <= 0.0 {
                     continue;
                 }
@@ -126,12 +126,17 @@ fn mean_along(
 /// How much of the guide's variation along the edge through `pos` is jumps, against the edge's
 /// contrast (a side's value against the other's): 0 off an edge, on an edge with another near it,
 /// and on a smooth edge; 1 when the pixels along it are each one side or the other at random.
-/// `scratch` holds `2·reach + 6` guide pixels.
+/// Under [`Gate::Scatter`] also 0 where the guide's mean along the edge is not a mix of its two
+/// sides (beyond either side, or off the line between them by more than a quarter of their
+/// distance): the pixels along a colour edge that are each some share of its sides average to
+/// such a mix, structure along it (a reflection, a pattern) need not. `scratch` holds
+/// `2·reach + 6` guide pixels.
 fn jump_share(
     guide: &Guide,
     (x, y): (f32, f32),
     (nx, ny): (f32, f32),
     reach: usize,
+    gate: Gate,
     scratch: &mut [f32],
 ) -> f64 {
     let g = guide.planes.len();
@@ -166,7 +171,27 @@ fn jump_share(
             *m += s / count;
         }
     }
+    if gate == Gate::Scatter && !a_mix_of(mean, a, b, contrast) {
+        return 0.0;
+    }
     let spread: f64 = samples.chunks_exact(g).map(|s| dist(s, mean)).sum();
     let spread = spread / count as f64;
     (spread / (contrast / 4.0)).clamp(0.0, 1.0)
+}
+
+/// Whether `m` lies between `a` and `b` (its projection on the line from `b` to `a` within the
+/// two) and off that line by at most a quarter of their distance; `contrast` is |a − b|².
+fn a_mix_of(m: &[f32], a: &[f32], b: &[f32], contrast: f64) -> bool {
+    let dot: f64 = m
+        .iter()
+        .zip(a.iter().zip(b))
+        .map(|(&m, (&a, &b))| (m - b) as f64 * (a - b) as f64)
+        .sum();
+    let t = dot / contrast;
+    let off: f64 = m
+        .iter()
+        .zip(a.iter().zip(b))
+        .map(|(&m, (&a, &b))| (m as f64 - (b as f64 + t * (a - b) as f64)).powi(2))
+        .sum();
+    (0.0..=1.0).contains(&t) && off <= contrast / 16.0
 }
