@@ -2,13 +2,11 @@
 //! head -1`) ends the run quietly with exit 0; a stdout that cannot be written (a full device)
 //! is one error line and exit 1; never a panic.
 
-mod common;
-
 use std::os::fd::{FromRawFd, OwnedFd};
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
 
-use common::*;
+use crate::common::*;
 
 /// Runs gsid with `args` and a stdout whose reader is already closed, so the first write fails.
 fn into_closed_pipe(args: &[&str]) -> Output {
