@@ -118,8 +118,10 @@ fn full_device(dir: &Path) -> Option<std::path::PathBuf> {
 /// The write end of a pipe whose reader is already gone.
 fn closed_pipe() -> OwnedFd {
     let mut fds = [0; 2];
-    // SAFETY: pipe writes two new descriptors into the array it is given.
-    assert_eq!(unsafe { libc::pipe(fds.as_mut_ptr()) }, 0);
+    // Close-on-exec, so no child another test spawns meanwhile inherits the read end and keeps
+    // the pipe open.
+    // SAFETY: pipe2 writes two new descriptors into the array it is given.
+    assert_eq!(unsafe { libc::pipe2(fds.as_mut_ptr(), libc::O_CLOEXEC) }, 0);
     // SAFETY: both descriptors were just created by pipe and are owned here alone.
     let (read, write) = unsafe { (OwnedFd::from_raw_fd(fds[0]), OwnedFd::from_raw_fd(fds[1])) };
     drop(read);
