@@ -9,7 +9,7 @@ The presets take GSID's σ and the à-trous σ from the measured noise (docs/ALG
     `--set pyramid.gsid.sigma=S --set pyramid.gsid.noise_power=0 --set pyramid.gsid.local_noise=0
     --set atrous.sigma=A --set atrous.noise_power=0`: with power 0 the noise factor is 1 at any level,
     and with local_noise 0 every pixel's colour difference counts alike, so σ = sigma at every
-    pyramid level, pixel and à-trous pass (`cargo test --release --test noise noise_power_zero`
+    pyramid level, pixel and à-trous pass (`cargo test --release --test it noise::noise_power_zero`
     checks that this gives the same bits as the stages without a `noise` buffer; a preset's own
     `levelN = { gsid = { ... } }` override would win over `pyramid.gsid.*` at that level, and the
     shipped presets have none). Everything else

@@ -1,5 +1,6 @@
 //! The house rules of `src/`, checked on every test run so they are kept as the code grows: no file
-//! over 700 lines, and no circle of imports between files.
+//! over 700 lines, and no circle of imports between files. The integration tests (`tests/it/`, one
+//! crate of modules since they share one binary) are held to the second rule too.
 //!
 //! An import is any path a file names that leads into another file's module: `use` trees (braces
 //! expanded), paths written inline in code (`crate::filters::noise::tone_level(..)`), `super::` paths and
@@ -29,9 +30,10 @@ fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
     }
 }
 
-/// The module path of a file under `src/` (`src/lib.rs` → [], `src/io/mod.rs` → ["io"],
-/// `src/io/pfm.rs` → ["io", "pfm"]); `None` for files outside the library's tree (`main.rs`).
-fn module_path(src: &Path, file: &Path) -> Option<Vec<String>> {
+/// The module path of a file under a crate's folder whose root file is `root` (`src/lib.rs` → [],
+/// `src/io/mod.rs` → ["io"], `src/io/pfm.rs` → ["io", "pfm"]); `None` for the folder's other crate
+/// root (`src/main.rs`, the binary beside the library).
+fn module_path(src: &Path, root: &str, file: &Path) -> Option<Vec<String>> {
     let rel = file.strip_prefix(src).unwrap();
     let mut parts: Vec<String> = rel
         .iter()
@@ -39,8 +41,8 @@ fn module_path(src: &Path, file: &Path) -> Option<Vec<String>> {
         .collect();
     let last = parts.pop().unwrap();
     match last.as_str() {
-        "lib.rs" if parts.is_empty() => Some(parts),
-        "main.rs" if parts.is_empty() => None,
+        name if parts.is_empty() && name == root => Some(parts),
+        "lib.rs" | "main.rs" if parts.is_empty() => None,
         "mod.rs" => Some(parts),
         name => {
             parts.push(name.trim_end_matches(".rs").to_string());
@@ -317,13 +319,13 @@ fn resolve(
     files.get(&abs).cloned()
 }
 
-/// Every file's imports: the other files it names.
-fn import_graph(src: &Path) -> BTreeMap<PathBuf, BTreeSet<PathBuf>> {
+/// Every file's imports: the other files it names, in the crate whose root is `src/root`.
+fn import_graph(src: &Path, root: &str) -> BTreeMap<PathBuf, BTreeSet<PathBuf>> {
     let mut all = Vec::new();
     rust_files(src, &mut all);
     let files: BTreeMap<Vec<String>, PathBuf> = all
         .iter()
-        .filter_map(|f| module_path(src, f).map(|m| (m, f.clone())))
+        .filter_map(|f| module_path(src, root, f).map(|m| (m, f.clone())))
         .collect();
     let mut graph = BTreeMap::new();
     for (module, file) in &files {
@@ -420,21 +422,31 @@ fn no_source_file_is_over_700_lines() {
     assert!(long.is_empty(), "over {MAX_LINES} lines: {long:#?}");
 }
 
-#[test]
-fn no_files_import_each_other_in_a_circle() {
-    let src = src();
-    let found = circles(&import_graph(&src));
-    let named: Vec<String> = found
+/// The import circles of the crate whose root is `dir/root`, each named by its files.
+fn named_circles(dir: &Path, root: &str) -> Vec<String> {
+    circles(&import_graph(dir, root))
         .iter()
         .map(|group| {
             group
                 .iter()
-                .map(|f| f.strip_prefix(&src).unwrap().display().to_string())
+                .map(|f| f.strip_prefix(dir).unwrap().display().to_string())
                 .collect::<Vec<_>>()
                 .join(" ↔ ")
         })
-        .collect();
+        .collect()
+}
+
+#[test]
+fn no_files_import_each_other_in_a_circle() {
+    let named = named_circles(&src(), "lib.rs");
     assert!(named.is_empty(), "import circles: {named:#?}");
+}
+
+#[test]
+fn no_test_files_import_each_other_in_a_circle() {
+    let tests = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/it");
+    let named = named_circles(&tests, "main.rs");
+    assert!(named.is_empty(), "import circles in tests/it: {named:#?}");
 }
 
 /// The checker itself finds a circle, through `use` trees, `super::` and inline paths, and ignores
@@ -457,7 +469,7 @@ fn the_circle_finder_sees_the_three_ways_of_naming_a_file() {
         "c.rs",
         "pub struct C;\nfn h() { crate::b::g(); }\n#[cfg(test)]\nmod tests { use super::*; }\n",
     );
-    let found = circles(&import_graph(&dir));
+    let found = circles(&import_graph(&dir, "lib.rs"));
     let _ = fs::remove_dir_all(&dir);
     assert_eq!(found.len(), 1, "{found:?}");
     assert_eq!(

@@ -1,7 +1,12 @@
 //! Every allowed maximum of a setting runs in bounded memory (or is refused up front): the binary
 //! runs on tiny images with each key at the top of its range, and the child's peak RSS is read
 //! from `wait4`, which reports it for that child alone (tests run in parallel threads).
+//!
+//! A test binary of its own, not a module of `tests/it`: the peak `wait4` reports is at least the
+//! parent's resident size when it spawned the child (Linux carries the old memory's high-water mark
+//! across `exec`), so the parent must be this small binary, not one whose other tests hold images.
 
+#[path = "it/common.rs"]
 mod common;
 
 use std::path::Path;

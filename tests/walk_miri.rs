@@ -5,6 +5,7 @@
 //! Each case runs the reference, the scalar and (where it runs) the AVX2 kernel and wants the
 //! reference's bits, so a kernel that reads a wrong cell fails here even when Miri is not looking.
 
+#[path = "it/common.rs"]
 mod common;
 
 use common::synthetic_set;

@@ -2,7 +2,7 @@
  * framebuffer stored bottom-up, a negative row stride; albedo, normal and the renderer's variance
  * as named buffers), and writes the result as packed RGB floats; then checks that bad arguments
  * come back as error codes with a message, and that a cancelled run leaves the output alone.
- * tests/embedding.rs builds and runs it and compares the pixels with the CLI's.
+ * tests/it/embedding.rs builds and runs it and compares the pixels with the CLI's.
  *
  *   denoise W H color.f32 albedo.f32 normal.f32 variance.f32 out.f32
  */

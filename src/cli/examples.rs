@@ -1,5 +1,5 @@
 //! The examples every `--help` ends with. Each line starting `gsid ` runs as it is from the
-//! repository root on the bundled fixtures (`tests/examples.rs` runs them all).
+//! repository root on the bundled fixtures (`tests/it/examples.rs` runs them all).
 
 pub(super) const TOP: &str = "\
 Examples:

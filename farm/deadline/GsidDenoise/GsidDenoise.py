@@ -12,7 +12,7 @@ from Deadline.Plugins import DeadlinePlugin, PluginType
 from Deadline.Scripting import FileUtils, RepositoryUtils  # noqa: F401 (RepositoryUtils for site hooks)
 
 # `gsid: frame 1003: 40 % (frame 3 of 8, run 29 %, stage gsid, ETA 0:00:12)`: group 1 is the run's
-# (the task's) percent. tests/farm.rs checks this line against gsid's real output.
+# (the task's) percent. tests/it/farm.rs checks this line against gsid's real output.
 PROGRESS_REGEX = r"^gsid: .*\brun (\d+) %, stage (\S+)"
 ERROR_REGEX = r"^gsid: error: (.*)"
 

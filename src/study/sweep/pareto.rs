@@ -49,6 +49,6 @@ mod tests {
         assert_eq!(pareto_front(&[(f64::NAN, 0.9), (1.0, 0.5)]), [false, true]);
         assert!(pareto_front(&[]).is_empty());
         assert_eq!(pareto_front(&[(0.5, 0.1)]), [true]);
-        // Property tests of the front are in tests/sweep.rs.
+        // Property tests of the front are in tests/it/sweep.rs.
     }
 }

@@ -2,13 +2,11 @@
 //! head -1`) ends the run quietly with exit 0; a stdout that cannot be written (a full device)
 //! is one error line and exit 1; never a panic.
 
-mod common;
-
 use std::os::fd::{FromRawFd, OwnedFd};
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
 
-use common::*;
+use crate::common::*;
 
 /// Runs gsid with `args` and a stdout whose reader is already closed, so the first write fails.
 fn into_closed_pipe(args: &[&str]) -> Output {
@@ -120,8 +118,10 @@ fn full_device(dir: &Path) -> Option<std::path::PathBuf> {
 /// The write end of a pipe whose reader is already gone.
 fn closed_pipe() -> OwnedFd {
     let mut fds = [0; 2];
-    // SAFETY: pipe writes two new descriptors into the array it is given.
-    assert_eq!(unsafe { libc::pipe(fds.as_mut_ptr()) }, 0);
+    // Close-on-exec, so no child another test spawns meanwhile inherits the read end and keeps
+    // the pipe open.
+    // SAFETY: pipe2 writes two new descriptors into the array it is given.
+    assert_eq!(unsafe { libc::pipe2(fds.as_mut_ptr(), libc::O_CLOEXEC) }, 0);
     // SAFETY: both descriptors were just created by pipe and are owned here alone.
     let (read, write) = unsafe { (OwnedFd::from_raw_fd(fds[0]), OwnedFd::from_raw_fd(fds[1])) };
     drop(read);

@@ -1,12 +1,10 @@
 //! What an EXR output keeps of the colour's file: alpha copied bit for bit, the data and display
 //! windows, header attributes, the other layers with `--keep-layers`; `--half` and `--compression`.
 
-mod common;
-
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use common::{assert_bad_input, gsid, stderr};
+use crate::common::{assert_bad_input, gsid, stderr};
 use exr::meta::attribute::{AttributeValue, IntegerBounds, SampleType, Text};
 use exr::meta::header::LayerAttributes;
 use exr::prelude::{

@@ -1,9 +1,7 @@
 //! `gsid denoise PATTERN --temporal R`: frames merged with their neighbours (README "Temporal
 //! denoising"), on crops of the Cycles shots in `fixtures/cycles-*-small` and on synthetic shots.
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use std::path::{Path, PathBuf};
 
 use exr::prelude::{AnyChannel, AnyChannels, FlatSamples, Image as ExrImage};

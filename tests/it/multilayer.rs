@@ -1,10 +1,8 @@
 //! Multilayer and multi-part EXR files as one input, and buffers named one by one (`--hdr` …).
 
-mod common;
-
 use std::path::Path;
 
-use common::{assert_bad_input, gsid, stderr};
+use crate::common::{assert_bad_input, gsid, stderr};
 use exr::prelude::{
     read_all_flat_layers_from_file, AnyChannel, AnyChannels, Encoding, FlatSamples,
     Image as ExrImage, Layer as ExrLayer, SmallVec, WritableImage,

@@ -1,9 +1,7 @@
 //! The à-trous stage: both kernels give the same bits, it keeps what it should keep, masked pixels
 //! give no weight, hard inputs stay finite, and bad keys are one-line errors.
 
-mod common;
-
-use common::{assert_set_refused, default_features, synthetic_set};
+use crate::common::{assert_set_refused, default_features, synthetic_set};
 use gsid::features::{FeaturePlanes, Features, Recipe, Tone, Weights};
 use gsid::filters::atrous::pass::pass_with;
 use gsid::kernels::simd::Kernel;

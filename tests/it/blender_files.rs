@@ -1,12 +1,10 @@
 //! Blender files as they come: `Noisy Image` read before the denoised `Combined`, `--layer` for a
 //! file of several view layers, and notes only for what the renderer could have written.
 
-mod common;
-
 use std::collections::HashMap;
 use std::path::Path;
 
-use common::{assert_bad_input, gsid, stderr};
+use crate::common::{assert_bad_input, gsid, stderr};
 use exr::prelude::{read_all_flat_layers_from_file, FlatSamples};
 
 const NOISY: &str = "fixtures/blender-passes/denoiser-on.exr";

@@ -7,8 +7,7 @@
 //! target/embed/libgsid.a) and a venv with the package installed (`GSID_CI_VENV`). Without them
 //! each test prints "skipped: ..." and passes, except under `CI=true`, where it fails.
 
-mod common;
-
+use crate::common;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

@@ -1,7 +1,7 @@
 //! The noise estimate against the truth `gsid render` writes: an N-spp set's true variance of
 //! the pixel mean is `sample_variance.exr / N` (docs/FORMATS.md). Prints, per fixture and sample
 //! count, the median relative error of the estimated standard deviation (the README's table:
-//! `cargo test --release --test noise -- --nocapture`), and checks it stays in bounds. The
+//! `cargo test --release --test it noise:: -- --nocapture`), and checks it stays in bounds. The
 //! estimate is robust by design (a trimmed mean): where rare bright paths carry most of the
 //! variance (caustics) it measures the bulk of the noise and is low; that is checked too.
 //! Then hard cases of the noise-aware presets: variance buffers of zeros, NaNs and infinities, a

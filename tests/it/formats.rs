@@ -1,11 +1,9 @@
 //! Image formats by extension: PFM in and out (bit-exact, either byte order, as the folder form
 //! with EXR gives), 8-bit PNG/JPEG previews, unknown extensions refused before any work, `--ldr`.
 
-mod common;
-
 use std::path::{Path, PathBuf};
 
-use common::*;
+use crate::common::*;
 use gsid::{io, Image};
 use proptest::prelude::*;
 

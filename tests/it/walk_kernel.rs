@@ -1,8 +1,6 @@
 //! The fast walk kernel equals the plain reference, on any thread count, for any input.
 
-mod common;
-
-use common::{default_features, synthetic_set};
+use crate::common::{default_features, synthetic_set};
 use gsid::features::{Features, Tone, Weights};
 use gsid::filters::gsid::walk::{
     self, Engine, FeatureSource, Kernel, WalkJob, WalkParams, WalkStats,

@@ -1,7 +1,6 @@
 //! ALGORITHM.md §6: GSID above SID on every fixture, each at its own best σ, at 16 and 64 spp.
 
-#[path = "score/mod.rs"]
-mod score;
+use crate::score;
 
 use std::path::Path;
 

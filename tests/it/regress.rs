@@ -3,9 +3,7 @@
 //! right is left alone, hard inputs stay finite, the result follows the exposure, and bad keys
 //! are one-line errors.
 
-mod common;
-
-use common::assert_set_refused;
+use crate::common::assert_set_refused;
 use gsid::filters::regress::{refine_with, regress_with, Inputs, Params};
 use gsid::kernels::simd::Kernel;
 use gsid::Image;

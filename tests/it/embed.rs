@@ -2,8 +2,7 @@
 //! the owned (`Vec`) path whatever the layout, names the buffer at fault, and leaves the caller's
 //! buffer untouched when the run fails or is cancelled.
 
-mod common;
-
+use crate::common;
 use gsid::{
     Buffers, CancelToken, DenoiseOptions, Error, Feature, Image, ImageView, ImageViewMut, Inputs,
     Layout, PipelineSpec, RenderSet,

@@ -2,9 +2,7 @@
 //! progress lines in the documented form (`gsid::cli::meter::LINE_REGEX`), arriving as the frame
 //! runs, and the verbosity levels.
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::Stdio;

@@ -1,8 +1,6 @@
 //! Numerically hard inputs through whole pipelines: every output finite and sensible.
 
-mod common;
-
-use common::synthetic_set;
+use crate::common::synthetic_set;
 use gsid::pipeline::PipelineSpec;
 use gsid::{Buffers, DenoiseOptions, Image};
 

@@ -1,8 +1,6 @@
 //! The pyramid stage: exact reconstruction when untouched, level clipping, per-level keys.
 
-mod common;
-
-use common::synthetic_set;
+use crate::common::synthetic_set;
 use gsid::pipeline::PipelineSpec;
 use gsid::DenoiseOptions;
 use gsid::Image;

@@ -6,9 +6,7 @@
 //! The venv is `GSID_CI_VENV` (`.ci/run` sets it), else `target/ci-venv`; without one, the tests
 //! that need it say "skipped: no venv" and pass, except under `CI=true`, where they fail.
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::time::SystemTime;

@@ -1,8 +1,6 @@
 //! The binary as a user runs it: outputs, determinism, and bad input (exit 2, one line, nothing written).
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use gsid::io;
 use std::path::Path;
 
@@ -226,7 +224,7 @@ fn misspelled_pipeline_key_is_named() {
 #[test]
 fn unwritable_output_path_is_named_and_nothing_is_left() {
     let tmp = tempfile::tempdir().unwrap();
-    // A missing folder is made (tests/output_files.rs); a file where the folder should be is not.
+    // A missing folder is made (tests/it/output_files.rs); a file where the folder should be is not.
     std::fs::write(tmp.path().join("a-file"), b"").unwrap();
     let out = tmp.path().join("a-file").join("out.exr");
     let run = gsid(&["denoise", FIXTURE_SPP1, "-o", out.to_str().unwrap()]);

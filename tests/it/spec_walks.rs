@@ -2,11 +2,9 @@
 //! the spec alone: its own features, its own RNG, its own log-domain sampling. The two agree when
 //! their difference is no larger than Monte Carlo noise; a deliberately wrong copy must not.
 
-mod common;
-
 use std::path::Path;
 
-use common::{gsid, stderr};
+use crate::common::{gsid, stderr};
 use rand::rngs::Xoshiro256PlusPlus;
 use rand::{RngExt, SeedableRng};
 

@@ -2,11 +2,9 @@
 //! every channel of the beauty half, compression follows the input, missing folders are made;
 //! and two mistakes named plainly (missing frames of `--frames`, oidnDenoise's `-q high`).
 
-mod common;
-
 use std::path::Path;
 
-use common::{assert_bad_input, gsid, stderr};
+use crate::common::{assert_bad_input, gsid, stderr};
 use exr::prelude::{read_all_flat_layers_from_file, Compression, FlatSamples};
 
 const STUDIO: &str = "fixtures/cycles-studio/spp4.exr";

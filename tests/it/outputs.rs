@@ -6,14 +6,12 @@
 //! /dev/null or /dev/full: while the bug they guard against is there, such a test would replace the
 //! machine's device with a regular file.
 
-mod common;
-
 use std::os::unix::fs::{FileTypeExt, PermissionsExt};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use common::*;
+use crate::common::*;
 
 /// The first four bytes of every EXR file.
 const EXR_MAGIC: [u8; 4] = [0x76, 0x2f, 0x31, 0x01];

@@ -1,12 +1,10 @@
 //! No run writes over its own inputs: a folder of render sets whose output folder is one of the
 //! sets (or inside one) is refused before any work, whatever the sets are called.
 
-mod common;
-
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use common::*;
+use crate::common::*;
 use proptest::prelude::*;
 
 /// Every file under `root` with its bytes.

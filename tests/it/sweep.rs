@@ -1,12 +1,10 @@
 //! `gsid sweep`: the files it writes, bad input (exit 2, one line, nothing written), and the Pareto
 //! front it marks (property-tested).
 
-mod common;
-
 use std::path::Path;
 use std::process::{Command, Output};
 
-use common::*;
+use crate::common::*;
 use gsid::study::sweep::{dominates, pareto_front};
 use proptest::prelude::*;
 

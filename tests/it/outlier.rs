@@ -1,10 +1,8 @@
 //! Firefly detection: recall on injected fireflies in the fixture, hard small images, the stage in pipelines.
 
-mod common;
-
 use std::path::Path;
 
-use common::{synthetic_set, FIXTURE};
+use crate::common::{synthetic_set, FIXTURE};
 use gsid::filters::outlier::{self, luminance, Action, Detection, Guides, OutlierParams, Rule};
 use gsid::pipeline::PipelineSpec;
 use gsid::{io, Buffers, DenoiseOptions, Image};

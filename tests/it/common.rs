@@ -10,7 +10,7 @@ use gsid::{io, Buffers, Image};
 pub const FIXTURE: &str = "fixtures/mitsuba-cornell";
 
 /// Runs the binary: this build's, or the one `GSID_BIN` names (to watch a test fail on an older
-/// build: `GSID_BIN=old/gsid cargo test --test NAME`).
+/// build: `GSID_BIN=old/gsid cargo test --test it cli::`).
 pub fn gsid(args: &[&str]) -> Output {
     gsid_command().args(args).output().expect("run gsid")
 }

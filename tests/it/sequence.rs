@@ -1,9 +1,7 @@
 //! `gsid denoise` over frame sequences and folders of render sets, and `--json`: the binary as a
 //! render farm runs it.
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use std::path::{Path, PathBuf};
 
 const SRC: &str = "fixtures/cornell/spp4";

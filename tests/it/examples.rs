@@ -3,11 +3,9 @@
 //! and `pipelines/` (as the repository root does), with the binary as `gsid`. An example that
 //! stops working fails here, naming it.
 
-mod common;
-
 use std::path::Path;
 
-use common::{gsid, gsid_command, stderr};
+use crate::common::{gsid, gsid_command, stderr};
 
 /// Splits a shell line into words: single and double quotes, backslash escapes, and a `#` that
 /// starts a word begins a comment. Enough for the examples, which use no variables or pipes.

@@ -1,8 +1,7 @@
 //! ALGORITHM.md §3's calibration table ("what a plain implementation scores"), through the binary:
 //! gsid with the table's settings must land within ±0.01 SSIM of every entry on the Mitsuba box.
 
-#[path = "score/mod.rs"]
-mod score;
+use crate::score;
 
 use std::path::Path;
 
