@@ -148,12 +148,9 @@ fn pixel_limits(
                             }
                         })
                         .collect();
-                    dark_limit(&keys, &keys, p)
+                    dark_limit(&keys, keys.iter().copied(), p)
                 }
-                (true, _) => {
-                    let keys: Vec<f32> = window(x, y, p.radius, w, h).map(|j| key[j]).collect();
-                    dark_limit(scratch, &keys, p)
-                }
+                (true, _) => dark_limit(scratch, window(x, y, p.radius, w, h).map(|j| key[j]), p),
             };
             // Leave the brightest neighbour out when enough remain: two adjacent fireflies
             // would otherwise inflate each other's std and both pass.
@@ -228,14 +225,14 @@ fn albedo_level(a: &[f32]) -> f32 {
 /// dot is a sample that returned almost nothing on a surface whose other pixels did; the edge of a
 /// shadow or a dark crease the features do not show has dark neighbours along it, so it is not
 /// flagged, and a flagged pixel is raised no further than its own window shows. −∞ if none.
-fn dark_limit(mates: &[f32], keys: &[f32], p: &DetectParams) -> f32 {
+fn dark_limit(mates: &[f32], keys: impl Iterator<Item = f32>, p: &DetectParams) -> f32 {
     if mates.is_empty() {
         return f32::NEG_INFINITY;
     }
     let (mean, sd) = spread_without_darkest(mates);
     let t = mean - p.threshold as f64 * sd.max(p.std_floor as f64);
     let (mut d0, mut d1) = (f32::INFINITY, f32::INFINITY);
-    for &k in keys {
+    for k in keys {
         if k < d0 {
             (d0, d1) = (k, d0);
         } else if k < d1 {
