@@ -125,14 +125,22 @@ fn pixel_limits(
             if scratch.is_empty() {
                 return none;
             }
-            let low = match (p.two_sided, guides.albedo) {
-                (false, _) => none.1,
+            // A dot is darker than all its neighbours but one (a second dot beside it), and is
+            // raised no higher than the second-darkest: most pixels are not, and cost nothing more.
+            let floor = if p.two_sided {
+                second_darkest(window(x, y, p.radius, w, h).map(|j| key[j]))
+            } else {
+                f32::NEG_INFINITY
+            };
+            let low = match guides.albedo {
+                _ if key[i].is_nan() || key[i] >= floor => none.1,
                 // Alone on its surface in a clean albedo (its neighbours' within the same-surface
-                // tolerance of each other): a texel of its own. Each neighbour is first brought to
-                // the pixel's albedo, as the noise stage does, so a dark texel the albedo shows is
-                // no darker than its neighbours. In a noisy albedo (fog's per-sample mix of medium
-                // and surface) being alone says nothing, and the colours are compared as they are.
-                (true, Some(albedo))
+                // tolerance of each other, all but one): a texel of its own, or a thin line's end.
+                // Each neighbour is first brought to the pixel's albedo, as the noise stage does,
+                // so dark detail the albedo shows is no darker than its neighbours. In a noisy
+                // albedo (fog's per-sample mix of medium and surface) being alone says nothing,
+                // and the colours are compared as they are.
+                Some(albedo)
                     if alone
                         && clean_around(albedo, window(x, y, p.radius, w, h), p.albedo_tol) =>
                 {
@@ -148,9 +156,10 @@ fn pixel_limits(
                             }
                         })
                         .collect();
-                    dark_limit(&keys, keys.iter().copied(), p)
+                    let bound = floor.min(second_darkest(keys.iter().copied()));
+                    dark_limit(&keys, bound, p)
                 }
-                (true, _) => dark_limit(scratch, window(x, y, p.radius, w, h).map(|j| key[j]), p),
+                _ => dark_limit(scratch, floor, p),
             };
             // Leave the brightest neighbour out when enough remain: two adjacent fireflies
             // would otherwise inflate each other's std and both pass.
@@ -199,14 +208,29 @@ fn untone(t: f64) -> Option<f32> {
     (t < 1.0).then(|| (t / (1.0 - t)) as f32)
 }
 
-/// Whether the albedo luminances of the pixels `around` lie within `tol` of each other.
+/// Whether the albedo luminances of the pixels `around` lie within `tol` of each other, all but
+/// the brightest or all but the darkest (the one neighbour a thin line's end shares its albedo with).
 fn clean_around(albedo: &Image, around: impl Iterator<Item = usize>, tol: f32) -> bool {
-    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+    let (mut lo, mut lo2, mut hi, mut hi2) = (
+        f32::INFINITY,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        f32::NEG_INFINITY,
+    );
     for j in around {
         let l = albedo_level(albedo.pixel(j));
-        (lo, hi) = (lo.min(l), hi.max(l));
+        if l < lo {
+            (lo, lo2) = (l, lo);
+        } else if l < lo2 {
+            lo2 = l;
+        }
+        if l > hi {
+            (hi, hi2) = (l, hi);
+        } else if l > hi2 {
+            hi2 = l;
+        }
     }
-    hi - lo <= tol
+    hi2 - lo <= tol || hi - lo2 <= tol
 }
 
 /// Albedo luminance plus the noise stage's 0.02, so a black albedo divides nothing by zero.
@@ -219,18 +243,8 @@ fn albedo_level(a: &[f32]) -> f32 {
     }
 }
 
-/// The luminance below which a pixel is a dark dot, from its surface-mates' keys `mates` and all
-/// its neighbours' `keys`: the mates' mean less `threshold` std with the darkest mate left out
-/// (two adjacent dots would hide each other), and no higher than the second-darkest neighbour. A
-/// dot is a sample that returned almost nothing on a surface whose other pixels did; the edge of a
-/// shadow or a dark crease the features do not show has dark neighbours along it, so it is not
-/// flagged, and a flagged pixel is raised no further than its own window shows. −∞ if none.
-fn dark_limit(mates: &[f32], keys: impl Iterator<Item = f32>, p: &DetectParams) -> f32 {
-    if mates.is_empty() {
-        return f32::NEG_INFINITY;
-    }
-    let (mean, sd) = spread_without_darkest(mates);
-    let t = mean - p.threshold as f64 * sd.max(p.std_floor as f64);
+/// The second-smallest of `keys` (+∞ with fewer than two).
+fn second_darkest(keys: impl Iterator<Item = f32>) -> f32 {
     let (mut d0, mut d1) = (f32::INFINITY, f32::INFINITY);
     for k in keys {
         if k < d0 {
@@ -239,7 +253,22 @@ fn dark_limit(mates: &[f32], keys: impl Iterator<Item = f32>, p: &DetectParams) 
             d1 = k;
         }
     }
-    let t = t.min(d1 as f64);
+    d1
+}
+
+/// The luminance below which a pixel is a dark dot, from its surface-mates' keys `mates` and the
+/// key `bound` it may not be raised above (its second-darkest neighbour's): the mates' mean less
+/// `threshold` std with the darkest mate left out (a second dot beside it would inflate the std). A
+/// dot is a sample that returned almost nothing on a surface whose other pixels did; a shadow's edge
+/// or a dark crease the features do not show has dark neighbours along it, so it is not flagged,
+/// and a flagged pixel is raised no further than its own window shows. −∞ if none.
+fn dark_limit(mates: &[f32], bound: f32, p: &DetectParams) -> f32 {
+    if mates.is_empty() {
+        return f32::NEG_INFINITY;
+    }
+    let (mean, sd) = spread_without_darkest(mates);
+    let t = mean - p.threshold as f64 * sd.max(p.std_floor as f64);
+    let t = t.min(bound as f64);
     if t > 0.0 && t.is_finite() {
         untone(t).unwrap_or(f32::NEG_INFINITY)
     } else {

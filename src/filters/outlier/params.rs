@@ -85,7 +85,7 @@ pub struct DetectParams {
     /// Neighbours whose normal difference (1 − n·n′)/2 is at most this count as the same surface.
     pub normal_tol: f32,
     /// `feature` only: also flag dark dots, pixels below what their surface's spread explains
-    /// and darker than every neighbour but one.
+    /// and darker than all their neighbours but one.
     pub two_sided: bool,
 }
 

@@ -258,20 +258,48 @@ mod tests {
     }
 
     #[test]
-    fn a_thin_dark_line_and_a_dark_texel_stay() {
+    fn thin_dark_lines_and_a_dark_texel_stay() {
         let (w, h) = (9, 9);
-        // A dark line one pixel wide, slightly uneven, that no feature shows: each of its pixels
-        // has two dark neighbours along it.
+        // A dark outline one pixel wide, slightly uneven, that no feature shows (a thin shadow):
+        // each of its pixels has two dark neighbours along it.
+        let ring = |x: usize, y: usize| {
+            ((x == 2 || x == 6) && (2..=6).contains(&y))
+                || ((y == 2 || y == 6) && (2..=6).contains(&x))
+        };
         let mut img = surface(w, h);
         for y in 0..h {
-            let v = 0.02 + 0.01 * (y % 3) as f32;
-            img.pixel_mut(y * w + 4).copy_from_slice(&[v, v, v]);
+            for x in (0..w).filter(|&x| ring(x, y)) {
+                let v = 0.02 + 0.01 * ((x + y) % 3) as f32;
+                img.pixel_mut(y * w + x).copy_from_slice(&[v, v, v]);
+            }
         }
         let p = two_sided();
         let d = detect(&img, &Guides::default(), &p);
         let out = repair(&img, &d, &Guides::default(), &p, Action::Clamp);
         assert_eq!(d.count(), 0);
         assert_eq!(out, img);
+        // A dark line the albedo shows, ending inside the image: its end pixels have one
+        // neighbour on their surface and are judged at their albedo.
+        let mut img = surface(w, h);
+        for y in 2..7 {
+            img.pixel_mut(y * w + 4)
+                .copy_from_slice(&[0.02, 0.02, 0.02]);
+        }
+        img.pixel_mut(2 * w + 4)
+            .copy_from_slice(&[0.01, 0.01, 0.01]);
+        let albedo = Image::from_fn(w, h, 3, |x, y, _| {
+            if x == 4 && (2..7).contains(&y) {
+                0.02
+            } else {
+                0.8
+            }
+        });
+        let guides = Guides {
+            albedo: Some(&albedo),
+            normal: None,
+        };
+        let d = detect(&img, &guides, &p);
+        assert_eq!(d.count(), 0);
         // A dark texel the albedo shows: no neighbour shares its surface.
         let mut img = surface(w, h);
         img.pixel_mut(4 * w + 4)
