@@ -135,9 +135,9 @@ fn pixel_limits(
             let low = match guides.albedo {
                 _ if key[i].is_nan() || key[i] >= floor => none.1,
                 // Alone on its surface in a clean albedo (its neighbours' within the same-surface
-                // tolerance of each other, all but one): a texel of its own, or a thin line's end.
-                // Each neighbour is first brought to the pixel's albedo, as the noise stage does,
-                // so dark detail the albedo shows is no darker than its neighbours. In a noisy
+                // tolerance of each other): a texel of its own. Each neighbour is first brought to
+                // the pixel's albedo, as the noise stage does, so a dark texel the albedo shows is
+                // no darker than its neighbours. In a noisy
                 // albedo (fog's per-sample mix of medium and surface) being alone says nothing,
                 // and the colours are compared as they are.
                 Some(albedo)
@@ -208,29 +208,14 @@ fn untone(t: f64) -> Option<f32> {
     (t < 1.0).then(|| (t / (1.0 - t)) as f32)
 }
 
-/// Whether the albedo luminances of the pixels `around` lie within `tol` of each other, all but
-/// the brightest or all but the darkest (the one neighbour a thin line's end shares its albedo with).
+/// Whether the albedo luminances of the pixels `around` lie within `tol` of each other.
 fn clean_around(albedo: &Image, around: impl Iterator<Item = usize>, tol: f32) -> bool {
-    let (mut lo, mut lo2, mut hi, mut hi2) = (
-        f32::INFINITY,
-        f32::INFINITY,
-        f32::NEG_INFINITY,
-        f32::NEG_INFINITY,
-    );
+    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
     for j in around {
         let l = albedo_level(albedo.pixel(j));
-        if l < lo {
-            (lo, lo2) = (l, lo);
-        } else if l < lo2 {
-            lo2 = l;
-        }
-        if l > hi {
-            (hi, hi2) = (l, hi);
-        } else if l > hi2 {
-            hi2 = l;
-        }
+        (lo, hi) = (lo.min(l), hi.max(l));
     }
-    hi2 - lo <= tol || hi - lo2 <= tol
+    hi - lo <= tol
 }
 
 /// Albedo luminance plus the noise stage's 0.02, so a black albedo divides nothing by zero.
