@@ -245,13 +245,12 @@ mod tests {
         assert!((luminance(c) / d.low[dot] - 1.0).abs() < 1e-4, "{c:?}");
         assert!(luminance(c) > 0.2, "raised only to {c:?}");
         assert!((c[0] / c[2] - 1.5).abs() < 0.01 && (c[1] / c[2] - 1.25).abs() < 0.01);
-        // Raised no higher than its neighbours, and nothing else touched.
-        assert!(
-            luminance(c)
-                < window(4, 3, 1, w, h)
-                    .map(|j| luminance(img.pixel(j)))
-                    .fold(f32::INFINITY, f32::min)
-        );
+        // Raised no higher than its second-darkest neighbour, and nothing else touched.
+        let mut around: Vec<f32> = window(4, 3, 1, w, h)
+            .map(|j| luminance(img.pixel(j)))
+            .collect();
+        around.sort_by(f32::total_cmp);
+        assert!(luminance(c) <= around[1] * (1.0 + 1e-5), "{c:?} {around:?}");
         for i in (0..w * h).filter(|&i| i != dot) {
             assert_eq!(out.pixel(i), img.pixel(i));
         }
@@ -278,13 +277,8 @@ mod tests {
         let out = repair(&img, &d, &Guides::default(), &p, Action::Clamp);
         assert_eq!(d.count(), 0);
         assert_eq!(out, img);
-        // A dark line the albedo shows, across the image: its pixels share their surface.
-        let mut img = surface(w, h);
-        for y in 0..h {
-            let v = 0.02 + 0.01 * (y % 3) as f32;
-            img.pixel_mut(y * w + 4).copy_from_slice(&[v, v, v]);
-        }
-        let albedo = Image::from_fn(w, h, 3, |x, _, _| if x == 4 { 0.02 } else { 0.8 });
+        // The same outline, shown by the albedo: its pixels share their surface.
+        let albedo = Image::from_fn(w, h, 3, |x, y, _| if ring(x, y) { 0.02 } else { 0.8 });
         let guides = Guides {
             albedo: Some(&albedo),
             normal: None,
