@@ -91,7 +91,7 @@ from gsidscore import (DEFAULT_FIXTURES, GSID_BUFFERS, LAYER_PASSES, NOISE_BUFFE
                        gsid_pipelines, git_commit, linked_set, note, parse_spps, read_pass, read_rgb,
                        require_gsid, scored_case, write_rgb)
 from gsidscore import cases as fixture_cases
-from user_metrics import albedo_noise_correlation, brightness_percent, firefly_count
+from user_metrics import albedo_noise_correlation, brightness_percent, dark_dot_count, firefly_count
 
 DEFAULT_PIPELINES = ["fast", "balanced", "quality", "full"]
 
@@ -286,8 +286,8 @@ def parse_args(argv):
 def summary(rows, spps):
     """Means over the fixtures per spp and method, and each method's gap to OIDN."""
     lines = ["| spp | method | fixtures | SSIM | PSNR | relMSE | ΔSSIM to OIDN | ΔPSNR | relMSE / OIDN's "
-             "| brightness | fireflies (sum) |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "| brightness | fireflies (sum) | dark dots (sum) |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for spp in spps:
         at = [r for r in rows if r["spp"] == spp]
         methods = list(dict.fromkeys(r["method"] for r in at))
@@ -296,16 +296,16 @@ def summary(rows, spps):
             rs = [r for r in at if r["method"] == m]
             means[m] = (len(rs), *(statistics.mean(r[k] for r in rs) for k in ("ssim", "psnr", "relmse",
                                                                                  "brightness_pct")),
-                        sum(r["fireflies"] for r in rs))
+                        sum(r["fireflies"] for r in rs), sum(r.get("dark_dots", 0) for r in rs))
         oidn = next((means[m] for m in methods if m.startswith("OIDN")), None)
         for m in methods:
-            n, ssim, psnr, relmse, bright, flies = means[m]
+            n, ssim, psnr, relmse, bright, flies, dots = means[m]
             if oidn and not m.startswith("OIDN") and n == oidn[0]:
                 gap = f"{ssim - oidn[1]:+.4f} | {psnr - oidn[2]:+.2f} | {relmse / oidn[3]:.2f}×"
             else:
                 gap = "— | — | —"
             lines.append(f"| {spp} | {m} | {n} | {ssim:.4f} | {psnr:.2f} | {relmse:.5f} | {gap} | {bright:+.1f} % "
-                         f"| {flies} |")
+                         f"| {flies} | {dots} |")
     return lines
 
 
@@ -379,12 +379,13 @@ def main(argv=None):
         corr = albedo_noise_correlation(out_rgb, ref_rgb, *albedos) if albedos else None
         row = {"fixture": fx, "spp": spp, "method": method, "ssim": score["ssim"], "psnr": score["psnr"],
                "relmse": score["relmse"], "brightness_pct": brightness_percent(out_rgb, ref_rgb),
-               "fireflies": firefly_count(out_rgb, ref_rgb), "albedo_noise_corr": corr,
+               "fireflies": firefly_count(out_rgb, ref_rgb), "dark_dots": dark_dot_count(out_rgb, ref_rgb),
+               "albedo_noise_corr": corr,
                "seconds": seconds, "process_seconds": process, **extra}
         rows.append(row)
         secs = "" if seconds is None else f" {seconds:.3f} s"
         note(f"  {fx} spp{spp} {method}: SSIM {row['ssim']:.4f} PSNR {row['psnr']:.2f} relMSE {row['relmse']:.5f} "
-             f"bright {row['brightness_pct']:+.1f}% fireflies {row['fireflies']}{secs}")
+             f"bright {row['brightness_pct']:+.1f}% fireflies {row['fireflies']} dark dots {row['dark_dots']}{secs}")
 
     for fx, spp, setdir, ref in cases:
         note(f"{fx} spp{spp}:")
@@ -435,12 +436,12 @@ def main(argv=None):
     if skipped:
         print(f"Skipped gsid pipelines (not listed by `gsid pipelines`): {', '.join(skipped)}.")
     print()
-    print("| fixture | spp | method | SSIM | PSNR | relMSE | brightness³ | fireflies³ | albedo-noise corr.³ "
-          "| seconds¹ | process s² |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| fixture | spp | method | SSIM | PSNR | relMSE | brightness³ | fireflies³ | dark dots³ "
+          "| albedo-noise corr.³ | seconds¹ | process s² |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for r in rows:
         print(f"| {r['fixture']} | {r['spp']} | {r['method']} | {r['ssim']:.4f} | {r['psnr']:.2f} | "
-              f"{r['relmse']:.5f} | {r['brightness_pct']:+.1f} % | {r['fireflies']} | "
+              f"{r['relmse']:.5f} | {r['brightness_pct']:+.1f} % | {r['fireflies']} | {r['dark_dots']} | "
               f"{fmt(r['albedo_noise_corr'], '+.3f')} | {fmt(r['seconds'], '.3f')} | "
               f"{fmt(r['process_seconds'], '.2f')} |")
     print()
@@ -459,7 +460,8 @@ def main(argv=None):
           f"the same figure as ¹. Scores: `gsid eval --json` against fixtures/NAME/reference.exr (SSIM on the "
           f"clipped sRGB view, relMSE on linear HDR)."
           + " ³ scripts/user_metrics.py: mean luminance against the reference's; pixels above 4× a smooth "
-          "reference; correlation of the output's error with the albedo's noise (multilayer fixtures)."
+          "reference; pixels below a quarter of a bright (at least the median), smooth reference; "
+          "correlation of the output's error with the albedo's noise (multilayer fixtures)."
           + (f" BM3D: σ̂ estimated from the noisy image (skimage estimate_sigma, channel mean) under the "
              f"{args.bm3d_curve} curve (its σ̂ is in the JSON)." if args.bm3d_runs else ""))
 

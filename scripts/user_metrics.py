@@ -8,6 +8,10 @@
   * fireflies: output pixels brighter than 4× the reference (and than 4 × 0.01, so a black pixel is not
     counted for any light at all) where the reference is smooth (its 3×3 neighbourhood within ±25 % of
     the pixel): a speck on a flat wall or floor, not a highlight the reference has.
+  * dark dots: output pixels darker than a quarter of the reference where the reference is bright (at
+    or above the image's median luminance, so a shadow or a dark texel does not count) and smooth (as
+    for fireflies): a speck on a lit wall or floor whose one sample returned almost nothing (scattered
+    in fog, a shadow ray blocked) and that the denoiser kept.
   * albedo-noise correlation (only when the noisy and the reference albedo are given): the Spearman (rank)
     correlation of the output's error with the albedo's noise (noisy − reference albedo luminance) over
     the pixels: a denoiser that takes the albedo's noise for texture copies it into its output. Ranks, not
@@ -51,6 +55,15 @@ def firefly_count(output, reference, factor=4.0, floor=0.01):
     ref = luminance(reference)
     out = luminance(output)
     return int(np.count_nonzero((out > factor * np.maximum(ref, floor)) & smooth_mask(ref)))
+
+
+def dark_dot_count(output, reference, factor=0.25):
+    import numpy as np
+
+    ref = luminance(reference)
+    out = luminance(output)
+    bright = ref >= np.median(ref)
+    return int(np.count_nonzero((out < factor * ref) & bright & smooth_mask(ref)))
 
 
 def albedo_noise_correlation(output, reference, albedo, albedo_reference):

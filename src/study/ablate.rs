@@ -110,6 +110,7 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
         (true.into(), false.into()),
         "without the colour's own edges",
     )?);
+    out.extend(dark_dot_variants(spec)?);
     out.extend(noise_variants(spec)?);
     let paths = feature_paths(spec);
     if !paths.is_empty() {
@@ -148,6 +149,24 @@ fn switched_variants(
         v.stages[i].set(&[key], other.clone())?;
         out.push(Variant {
             name: format!("{} {label}", stage.id),
+            spec: v,
+        });
+    }
+    Ok(out)
+}
+
+/// For every `outlier` stage that also flags dark dots, the row without them: what the two-sided
+/// rule buys.
+fn dark_dot_variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
+    let mut out = Vec::new();
+    for (i, stage) in spec.stages.iter().enumerate() {
+        if stage.kind != "outlier" || stage.params.get("two_sided") != Some(&true.into()) {
+            continue;
+        }
+        let mut v = spec.clone();
+        v.stages[i].set(&["two_sided"], false.into())?;
+        out.push(Variant {
+            name: format!("{} one-sided (dark dots kept)", stage.id),
             spec: v,
         });
     }

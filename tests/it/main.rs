@@ -12,6 +12,7 @@ mod atrous;
 mod blender_files;
 mod calibration;
 mod cli;
+mod dark_dots;
 mod embed;
 mod embedding;
 mod examples;

@@ -74,6 +74,9 @@ pub struct OutlierParams {
     pub albedo_tol: f32,
     /// feature and median: largest normal difference (1 − n·n′)/2 of "the same surface".
     pub normal_tol: f32,
+    /// feature: also flag dark dots (a sample that returned almost nothing on a bright surface)
+    /// and raise them to their lower limit, so the walks and the blend average them.
+    pub two_sided: bool,
 }
 
 impl Default for OutlierParams {
@@ -89,6 +92,7 @@ impl Default for OutlierParams {
             std_floor: 0.02,
             albedo_tol: 0.1,
             normal_tol: 0.05,
+            two_sided: false,
         }
     }
 }
@@ -117,6 +121,12 @@ impl OutlierParams {
         }
         if self.light.as_deref() == Some("") {
             return Err(Error::config("light", "must name a buffer"));
+        }
+        if self.two_sided && self.rule != Rule::Feature {
+            return Err(Error::config(
+                "two_sided",
+                "needs rule = \"feature\" (the other rules are one-sided)",
+            ));
         }
         if !(0.0..=10.0).contains(&self.mad_floor) {
             return Err(Error::range("mad_floor", self.mad_floor, "0 to 10"));
@@ -153,6 +163,7 @@ impl OutlierParams {
             std_floor: self.std_floor,
             albedo_tol: self.albedo_tol,
             normal_tol: self.normal_tol,
+            two_sided: self.two_sided,
         }
     }
 }

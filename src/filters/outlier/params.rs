@@ -84,6 +84,9 @@ pub struct DetectParams {
     pub albedo_tol: f32,
     /// Neighbours whose normal difference (1 − n·n′)/2 is at most this count as the same surface.
     pub normal_tol: f32,
+    /// `feature` only: also flag dark dots, pixels below what their surface's spread explains
+    /// and darker than all their neighbours but one.
+    pub two_sided: bool,
 }
 
 /// Optional feature buffers that gate the `feature` rule and weight the `median` repair.
@@ -135,6 +138,9 @@ pub struct Detection {
     pub mask: Vec<bool>,
     /// Per pixel, the luminance above which it is flagged (+∞ where it cannot be flagged).
     pub limit: Vec<f32>,
+    /// Per pixel, the luminance below which it is flagged as a dark dot (−∞ where it cannot be:
+    /// everywhere unless the rule is two-sided).
+    pub low: Vec<f32>,
 }
 
 impl Detection {
@@ -167,6 +173,7 @@ pub(crate) mod fixtures {
             std_floor: 0.02,
             albedo_tol: 0.1,
             normal_tol: 0.05,
+            two_sided: false,
         }
     }
 

@@ -68,6 +68,22 @@ pub fn repair(
                     }
                 }
                 let l = lum[i];
+                if l < detection.low[i] {
+                    raise(
+                        px,
+                        l,
+                        detection.low[i],
+                        i,
+                        (x, y),
+                        (w, h),
+                        src,
+                        &lum,
+                        detection,
+                        guides,
+                        params,
+                    );
+                    continue;
+                }
                 let scale = if l > 0.0 {
                     (detection.limit[i] / l).clamp(0.0, 1.0)
                 } else {
@@ -79,6 +95,52 @@ pub fn repair(
             }
         });
     out
+}
+
+/// Raises a dark dot `px` (pixel i at (x, y), luminance `l`) to luminance `low` by adding a share
+/// of its unflagged neighbours' colour, each weighted by feature similarity as the median's: a
+/// black pixel has no hue of its own to scale, and its surface's is the one it lacks.
+#[allow(clippy::too_many_arguments)]
+fn raise(
+    px: &mut [f32],
+    l: f32,
+    low: f32,
+    i: usize,
+    (x, y): (usize, usize),
+    (w, h): (usize, usize),
+    src: &[f32],
+    lum: &[f32],
+    detection: &Detection,
+    guides: &Guides,
+    params: &DetectParams,
+) {
+    let (mut sum, mut total) = ([0.0f64; 3], 0.0f64);
+    for j in window(x, y, params.radius.max(1), w, h).filter(|&j| !detection.mask[j]) {
+        let (da, dn) = guides.distances(i, j);
+        let za = da / params.albedo_tol.max(1e-6);
+        let zn = dn / params.normal_tol.max(1e-6);
+        let wt = (-0.5 * (za * za + zn * zn)).exp().max(1e-6) as f64;
+        if !wt.is_finite() || !lum[j].is_finite() {
+            continue;
+        }
+        for k in 0..3 {
+            sum[k] += wt * src[3 * j + k] as f64;
+        }
+        total += wt;
+    }
+    if total <= 0.0 {
+        return;
+    }
+    let mean = sum.map(|v| v / total);
+    let lm = 0.2126 * mean[0] + 0.7152 * mean[1] + 0.0722 * mean[2];
+    let need = low as f64 - l as f64;
+    if !(lm > 0.0 && need > 0.0) {
+        return;
+    }
+    let s = need / lm;
+    for (v, m) in px.iter_mut().zip(mean) {
+        *v = (*v as f64 + s * m).min(f32::MAX as f64) as f32;
+    }
 }
 
 #[cfg(test)]
@@ -149,5 +211,142 @@ mod tests {
             };
             assert_eq!(run(1), run(2), "{rule:?}");
         }
+    }
+
+    fn two_sided() -> DetectParams {
+        DetectParams {
+            two_sided: true,
+            ..params(Rule::Feature)
+        }
+    }
+
+    /// A bright, slightly uneven, warm surface (R:G:B = 1.5 : 1.25 : 1).
+    fn surface(w: usize, h: usize) -> Image {
+        Image::from_fn(w, h, 3, |x, y, c| {
+            [0.6, 0.5, 0.4][c] * (1.0 + 0.02 * ((x * 7 + y * 3) % 5) as f32)
+        })
+    }
+
+    #[test]
+    fn a_dark_dot_on_a_flat_surface_is_raised_with_the_surfaces_hue() {
+        let (w, h) = (9, 7);
+        let mut img = surface(w, h);
+        let dot = 3 * w + 4;
+        img.pixel_mut(dot).copy_from_slice(&[0.0, 0.0, 0.0]);
+        // The one-sided rule leaves it.
+        let one = detect(&img, &Guides::default(), &params(Rule::Feature));
+        assert_eq!(one.count(), 0);
+        let p = two_sided();
+        let d = detect(&img, &Guides::default(), &p);
+        assert_eq!(d.count(), 1);
+        assert!(d.mask[dot]);
+        let out = repair(&img, &d, &Guides::default(), &p, Action::Clamp);
+        let c = out.pixel(dot);
+        assert!((luminance(c) / d.low[dot] - 1.0).abs() < 1e-4, "{c:?}");
+        assert!(luminance(c) > 0.2, "raised only to {c:?}");
+        assert!((c[0] / c[2] - 1.5).abs() < 0.01 && (c[1] / c[2] - 1.25).abs() < 0.01);
+        // Raised no higher than its second-darkest neighbour, and nothing else touched.
+        let mut around: Vec<f32> = window(4, 3, 1, w, h)
+            .map(|j| luminance(img.pixel(j)))
+            .collect();
+        around.sort_by(f32::total_cmp);
+        assert!(luminance(c) <= around[1] * (1.0 + 1e-5), "{c:?} {around:?}");
+        for i in (0..w * h).filter(|&i| i != dot) {
+            assert_eq!(out.pixel(i), img.pixel(i));
+        }
+    }
+
+    #[test]
+    fn thin_dark_lines_and_a_dark_texel_stay() {
+        let (w, h) = (9, 9);
+        // A dark outline one pixel wide, slightly uneven, that no feature shows (a thin shadow):
+        // each of its pixels has two dark neighbours along it.
+        let ring = |x: usize, y: usize| {
+            ((x == 2 || x == 6) && (2..=6).contains(&y))
+                || ((y == 2 || y == 6) && (2..=6).contains(&x))
+        };
+        let mut img = surface(w, h);
+        for y in 0..h {
+            for x in (0..w).filter(|&x| ring(x, y)) {
+                let v = 0.02 + 0.01 * ((x + y) % 3) as f32;
+                img.pixel_mut(y * w + x).copy_from_slice(&[v, v, v]);
+            }
+        }
+        let p = two_sided();
+        let d = detect(&img, &Guides::default(), &p);
+        let out = repair(&img, &d, &Guides::default(), &p, Action::Clamp);
+        assert_eq!(d.count(), 0);
+        assert_eq!(out, img);
+        // The same outline, shown by the albedo: its pixels share their surface.
+        let albedo = Image::from_fn(w, h, 3, |x, y, _| if ring(x, y) { 0.02 } else { 0.8 });
+        let guides = Guides {
+            albedo: Some(&albedo),
+            normal: None,
+        };
+        assert_eq!(detect(&img, &guides, &p).count(), 0);
+        // A dark texel the albedo shows: no neighbour shares its surface.
+        let mut img = surface(w, h);
+        img.pixel_mut(4 * w + 4)
+            .copy_from_slice(&[0.01, 0.01, 0.01]);
+        let albedo = Image::from_fn(w, h, 3, |x, y, _| if (x, y) == (4, 4) { 0.02 } else { 0.8 });
+        let guides = Guides {
+            albedo: Some(&albedo),
+            normal: None,
+        };
+        let d = detect(&img, &guides, &p);
+        assert_eq!(d.count(), 0);
+    }
+
+    #[test]
+    fn hard_cases_stay_finite_and_black_stays_black() {
+        let black = Image::filled(6, 5, 3, 0.0);
+        let p = two_sided();
+        let d = detect(&black, &Guides::default(), &p);
+        assert_eq!(d.count(), 0);
+        let img = Image::from_fn(11, 9, 3, |x, y, c| match (x * 5 + y * 3 + c) % 4 {
+            0 => 0.0,
+            1 => f32::MAX,
+            2 => 1e-30,
+            _ => 0.5,
+        });
+        for action in [Action::Clamp, Action::Median] {
+            let d = detect(&img, &Guides::default(), &p);
+            let out = repair(&img, &d, &Guides::default(), &p, action);
+            assert!(out.data().iter().all(|v| v.is_finite()), "{action:?}");
+        }
+        let one = Image::filled(1, 1, 3, 0.0);
+        assert_eq!(detect(&one, &Guides::default(), &p).count(), 0);
+    }
+
+    #[test]
+    fn dark_dots_the_same_bits_on_one_and_two_threads() {
+        let (w, h) = (37, 29);
+        let img = Image::from_fn(w, h, 3, |x, y, c| {
+            if (x * 31 + y * 17) % 13 == 0 {
+                0.0
+            } else {
+                0.3 + 0.1 * ((x * 7 + y * 13 + c) % 5) as f32
+            }
+        });
+        let albedo = Image::from_fn(
+            w,
+            h,
+            3,
+            |x, y, _| if (x / 5 + y / 7) % 2 == 0 { 0.3 } else { 0.6 },
+        );
+        let p = two_sided();
+        let run = |threads| {
+            crate::options::thread_pool(threads).unwrap().install(|| {
+                let guides = Guides {
+                    albedo: Some(&albedo),
+                    normal: None,
+                };
+                let d = detect(&img, &guides, &p);
+                (d.count(), repair(&img, &d, &guides, &p, Action::Clamp))
+            })
+        };
+        let (n, one) = run(1);
+        assert!(n > 10, "{n} flagged");
+        assert_eq!((n, one), run(2));
     }
 }
