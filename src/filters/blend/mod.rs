@@ -1,6 +1,7 @@
 //! The `blend` stage: never worse than the input where the input is good. Mixes a filtered image
 //! with the colour it came from, per pixel, by the Wiener weight of `keep_weights` (in `weights`;
-//! the error estimate it rests on in `error_estimate`).
+//! the error estimate it rests on in `error_estimate`; the image's noise-level function that caps
+//! the tested noise where the local estimate reads structure in `noise_level`).
 //!
 //! ```toml
 //! [[stage]]
@@ -12,9 +13,11 @@
 //! tolerance = 1.5        # slack for the error of both estimates (the presets use 2)
 //! stack_tolerance = 1.0  # the same for a variance measured from a shot's frames (`--temporal`)
 //! leak = 4.0             # a rise beyond √leak noise σ is light leaked from a neighbour
+//! noise_level = 0.0      # quantile of the image's noise-level function capping the test (0: off)
 //! ```
 
 mod error_estimate;
+mod noise_level;
 mod weights;
 
 use serde::{Deserialize, Serialize};
@@ -40,6 +43,12 @@ pub struct BlendParams {
     /// How many noise variances above its input a pixel's filtered value may rise before it
     /// counts as light leaked from a neighbour the features cannot tell apart.
     pub leak: f64,
+    /// Above 0: the quantile (at most 1) of the image's noise-level function (the local
+    /// estimates of pixels as bright, across the image) that caps the variance a pixel's change is
+    /// tested against, where the filter took light from a pixel that is no spike and its output
+    /// still shows structure there: a highlight or rim the estimate read as noise comes back. 0
+    /// tests against the local estimate alone. Costs a sort of the image's pixels.
+    pub noise_level: f64,
 }
 
 impl Default for BlendParams {
@@ -50,6 +59,7 @@ impl Default for BlendParams {
             tolerance: 1.5,
             stack_tolerance: 1.0,
             leak: 4.0,
+            noise_level: 0.0,
         }
     }
 }
@@ -66,6 +76,13 @@ impl BlendParams {
             if !(value > 0.0 && value <= 1e6) {
                 return Err(Error::range(key, value, "above 0, at most 1e6"));
             }
+        }
+        if !(0.0..=1.0).contains(&self.noise_level) {
+            return Err(Error::range(
+                "noise_level",
+                self.noise_level,
+                "0 (off) to 1",
+            ));
         }
         Ok(())
     }
@@ -122,7 +139,7 @@ impl Stage for BlendStage {
             crate::kernels::simd::Kernel::detect(),
             (original, filtered, variance),
             buffers.features(),
-            (tolerance, self.params.leak),
+            (tolerance, self.params.leak, self.params.noise_level),
             &ctx.meter,
         );
         ctx.meter.check()?;
