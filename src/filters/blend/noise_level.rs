@@ -11,6 +11,8 @@
 //! there the filtered image is smooth, or the input is below it (a path-traced pixel's noise is
 //! skewed: most samples land below the mean), and nothing changes.
 
+use rayon::prelude::*;
+
 use crate::filters::noise::measured::clean;
 use crate::image::Image;
 
@@ -76,13 +78,14 @@ impl NoiseLevel {
             return None;
         }
         let mut pairs: Vec<(f64, f64)> = (0..n)
+            .into_par_iter()
             .map(|i| {
                 let v = pixel_variance(variance.pixel(i));
                 (ln_luminance(filtered.pixel(i)), v)
             })
             .collect();
-        // Ties in both keys are equal pairs: the order is the same whatever the sort's schedule.
-        pairs.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
+        // Ties in both keys are equal pairs: the order is the same whatever the threads.
+        pairs.par_sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
         let mut centres: Vec<f64> = Vec::with_capacity(BINS);
         let mut ranges: Vec<(usize, usize)> = Vec::with_capacity(BINS);
         for k in 0..BINS {
@@ -278,6 +281,20 @@ mod tests {
                 assert_eq!(off[i], on[i], "({x}, {y})");
             }
         }
+    }
+
+    #[test]
+    fn the_same_bits_on_one_and_two_threads() {
+        let (color, filtered, variance) = blurred_band();
+        let on = |threads| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let keep = pool.install(|| keep(&color, &filtered, &variance, 0.75));
+            keep.iter().map(|k| k.to_bits()).collect::<Vec<_>>()
+        };
+        assert_eq!(on(1), on(2));
     }
 
     #[test]
