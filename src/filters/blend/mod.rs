@@ -14,6 +14,7 @@
 //! stack_tolerance = 1.0  # the same for a variance measured from a shot's frames (`--temporal`)
 //! leak = 4.0             # a rise beyond √leak noise σ is light leaked from a neighbour
 //! noise_level = 0.0      # quantile of the image's noise-level function capping the test (0: off)
+//! stack_noise_level = 0.0 # the same for a variance measured from a shot's frames (`--temporal`)
 //! ```
 
 mod error_estimate;
@@ -49,6 +50,10 @@ pub struct BlendParams {
     /// still shows structure there: a highlight or rim the estimate read as noise comes back. 0
     /// tests against the local estimate alone. Costs a sort of the image's pixels.
     pub noise_level: f64,
+    /// The same where the variance was measured from a shot's frames (`--temporal`): pooled over
+    /// the window's samples, it does not read structure as the image's estimate does, and the cap
+    /// measured a loss there (docs/RESULTS.md "Keeping what the input has right").
+    pub stack_noise_level: f64,
 }
 
 impl Default for BlendParams {
@@ -60,6 +65,7 @@ impl Default for BlendParams {
             stack_tolerance: 1.0,
             leak: 4.0,
             noise_level: 0.0,
+            stack_noise_level: 0.0,
         }
     }
 }
@@ -77,12 +83,13 @@ impl BlendParams {
                 return Err(Error::range(key, value, "above 0, at most 1e6"));
             }
         }
-        if !(0.0..=1.0).contains(&self.noise_level) {
-            return Err(Error::range(
-                "noise_level",
-                self.noise_level,
-                "0 (off) to 1",
-            ));
+        for (key, value) in [
+            ("noise_level", self.noise_level),
+            ("stack_noise_level", self.stack_noise_level),
+        ] {
+            if !(0.0..=1.0).contains(&value) {
+                return Err(Error::range(key, value, "0 (off) to 1"));
+            }
         }
         Ok(())
     }
@@ -130,16 +137,16 @@ impl Stage for BlendStage {
             &self.params.original,
             &self.params.noise,
         )?;
-        let tolerance = if buffers.variance_from_stack() {
-            self.params.stack_tolerance
+        let (tolerance, noise_level) = if buffers.variance_from_stack() {
+            (self.params.stack_tolerance, self.params.stack_noise_level)
         } else {
-            self.params.tolerance
+            (self.params.tolerance, self.params.noise_level)
         };
         let keep = keep_weights_metered(
             crate::kernels::simd::Kernel::detect(),
             (original, filtered, variance),
             buffers.features(),
-            (tolerance, self.params.leak, self.params.noise_level),
+            (tolerance, self.params.leak, noise_level),
             &ctx.meter,
         );
         ctx.meter.check()?;
