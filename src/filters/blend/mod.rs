@@ -204,6 +204,42 @@ mod tests {
         );
     }
 
+    /// The blend stage of `full` (noise level 0.75, none for a stack) over the noise-level
+    /// module's blurred band, with its variance from a renderer or a stack, `noise_level` `q`.
+    fn band_blended(from_stack: bool, q: f64) -> Image {
+        let (color, filtered, variance) = super::noise_level::tests::blurred_band();
+        let mut set = RenderSet::new(color);
+        set.noise.variance = Some(variance);
+        set.noise.from_stack = from_stack;
+        let mut buffers = Buffers::from(set);
+        buffers.insert("out", filtered).unwrap();
+        buffers.insert_same("noise", "variance").unwrap();
+        let table: toml::Table = toml::from_str(&format!(
+            "tolerance = 2.0\nnoise_level = {q}\nstack_noise_level = 0.0"
+        ))
+        .unwrap();
+        let io = StageIo {
+            input: "out".into(),
+            output: "out".into(),
+        };
+        let stage = BlendStage::from_table("blend", io, table).unwrap();
+        let mut ctx = Context::new(0, false);
+        stage.execute(&mut buffers, &mut ctx).unwrap();
+        buffers.get("out").unwrap().clone()
+    }
+
+    #[test]
+    fn the_noise_level_cap_is_off_for_a_stack_measured_variance() {
+        // A renderer's (or the image's) variance: the band's edge comes back towards the input.
+        let (single, plain) = (band_blended(false, 0.75), band_blended(false, 0.0));
+        assert!(single.at(22, 10)[0] > plain.at(22, 10)[0] + 0.1);
+        // A stack's: `stack_noise_level` 0, the blend as without the cap.
+        assert_eq!(
+            band_blended(true, 0.75).data(),
+            band_blended(true, 0.0).data()
+        );
+    }
+
     #[test]
     fn a_rise_beyond_two_sigma_is_taken_back() {
         let (color, _, _) = blend_case();

@@ -189,7 +189,7 @@ fn window_variance(image: &[f32], (w, h): (usize, usize), (x, y): (usize, usize)
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::super::weights::keep_weights_metered;
     use super::*;
     use crate::filters::noise::from_image::tests::noisy_flat;
@@ -237,7 +237,7 @@ mod tests {
     /// the local estimate around it reads part of the band as noise (`BAND_VAR` over columns
     /// 18..=28), the background's is its true 0.0004, and so is that of the bright part, which
     /// gives the image's level at the band's brightness.
-    fn blurred_band() -> (Image, Image, Image) {
+    pub(in crate::filters::blend) fn blurred_band() -> (Image, Image, Image) {
         let mut color = background(3, true);
         for y in 0..SIDE {
             for x in 22..=24 {
