@@ -152,6 +152,8 @@ def main(argv=None):
     p.add_argument("--gsid", type=Path, default=None, help="gsid binary (default: $CARGO_TARGET_DIR or target/release)")
     p.add_argument("--no-oidn", action="store_true")
     p.add_argument("--json", type=Path)
+    p.add_argument("--keep", type=Path, default=None,
+                   help="keep every output (inputs, references, gsid, gsid --temporal, OIDN) in this folder")
     args = p.parse_args(argv)
     target = Path(os.environ.get("CARGO_TARGET_DIR", gs.ROOT / "target"))
     gsid = args.gsid or target / "release" / "gsid"
@@ -161,11 +163,14 @@ def main(argv=None):
     results = {"shot": str(args.shot), "radius": args.radius, "pipeline": args.pipeline,
                "load_average_start": load, "spp": {}}
     mask_note = False
-    with tempfile.TemporaryDirectory(prefix="gsid-temporal-") as tmp:
+    if args.keep is not None:
+        args.keep.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="gsid-temporal-") as scratch:
+        tmp = scratch if args.keep is None else args.keep
         for spp in gs.parse_spps(args.spp):
             folder = args.shot / f"spp{spp}"
             work = Path(tmp) / f"spp{spp}"
-            work.mkdir()
+            work.mkdir(exist_ok=True)
             frames = frames_of(folder)
             refs_path = [reference_of(args.shot, f) for f in frames]
             refs = [gs.read_pass(r, *gs.LAYER_PASSES["color"]) for r in refs_path]

@@ -337,6 +337,7 @@ fn ablate_prints_and_writes_the_table() {
         "without reliability",
         "reliability with median centres",
         "coverage without the across-edge spread",
+        "coverage without the colour's own edges",
         "blend without the noise-level cap",
         "without prefilter",
         "without pyramid",
@@ -358,9 +359,9 @@ fn ablate_prints_and_writes_the_table() {
     let text = std::fs::read_to_string(&csv).unwrap();
     // Header, then: full, nine stages removed (the noise stage is not: later stages read it; the
     // outlier's row takes its spread with it), the reliability's median centre, coverage without
-    // its across-edge spread, the blend without its noise-level cap, the four noise rows, eight
-    // weights zeroed, plain SID.
-    assert_eq!(text.lines().count(), 1 + 26, "{text}");
+    // its across-edge spread and without its colour-edge step, the blend without its noise-level
+    // cap, the four noise rows, eight weights zeroed, plain SID.
+    assert_eq!(text.lines().count(), 1 + 27, "{text}");
     assert!(text.starts_with("variant,ssim,psnr,relmse,seconds,delta_ssim"));
     let bad = gsid(&[
         "ablate",

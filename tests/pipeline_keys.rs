@@ -215,12 +215,31 @@ fn out_of_range_coverage_keys_are_named() {
     let mut spec = PipelineSpec::builtin("full").unwrap();
     spec.apply_set("coverage.across=false").unwrap();
     assert!(spec.build().is_ok());
-    // Without albedo or normal there is no edge to follow: the image passes, and a note says so.
+    // So is `colour`.
+    let mut spec = PipelineSpec::builtin("full").unwrap();
+    let err = match spec.apply_set("coverage.colour=1") {
+        Err(e) => e.to_string(),
+        Ok(()) => spec.build().err().expect("rejected").to_string(),
+    };
+    assert!(err.contains("colour"), "{err}");
+    // Without albedo or normal no feature edge is followed, only the colour's own, and a note
+    // says so; with `colour` off the image passes unchanged.
     let notes = notes_of(&PipelineSpec::builtin("full").unwrap());
     assert!(
         notes
             .iter()
-            .any(|n| n.starts_with("coverage: no albedo or normal")),
+            .any(|n| n.starts_with("coverage: no albedo or normal")
+                && n.contains("only the colour's own edges")),
+        "{notes:?}"
+    );
+    let mut spec = PipelineSpec::builtin("full").unwrap();
+    spec.apply_set("coverage.colour=false").unwrap();
+    let notes = notes_of(&spec);
+    assert!(
+        notes
+            .iter()
+            .any(|n| n.starts_with("coverage: no albedo or normal")
+                && n.contains("passes unchanged")),
         "{notes:?}"
     );
 }

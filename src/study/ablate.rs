@@ -90,7 +90,8 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
         }
     }
     // A `reliability` stage's surface mean against its median centre; a `coverage` stage's
-    // across-edge spread (the renderer's estimated pixel-filter width) against none.
+    // across-edge spread (the renderer's estimated pixel-filter width) and its step along the
+    // edges only the colour shows, each against none.
     out.extend(switched_variants(
         spec,
         ("reliability", "centre"),
@@ -102,6 +103,12 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
         ("coverage", "across"),
         (true.into(), false.into()),
         "without the across-edge spread",
+    )?);
+    out.extend(switched_variants(
+        spec,
+        ("coverage", "colour"),
+        (true.into(), false.into()),
+        "without the colour's own edges",
     )?);
     // A `blend` stage's noise-level cap (off unless set): the row with it off.
     for (i, stage) in spec.stages.iter().enumerate() {

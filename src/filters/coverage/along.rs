@@ -9,6 +9,8 @@
 //! clean anti-aliased edge), and only as far as its colour noise covers the change (a Wiener
 //! weight, `tolerance` · noise / change², as `blend` weighs its change). An edge with another edge
 //! within three pixels (stripes, fine texture) is left alone: its direction is not one line's.
+//! On an edge only the colour shows ([`Gate::Scatter`]), the noise that gates the move is at least
+//! the colour's own scatter along the edge.
 
 use rayon::prelude::*;
 
@@ -24,15 +26,28 @@ const BEYOND: f32 = 3.0;
 /// Least contrast (squared guide distance) across an edge that counts as one.
 const MIN_CONTRAST: f32 = 1e-4;
 
+/// What the move's noise gate weighs the change against.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Gate {
+    /// The pixel's noise variance.
+    Noise,
+    /// The larger of the pixel's noise variance and the colour's scatter along the edge. Where
+    /// the guide is the colour itself, the pixels along an edge of few samples scatter between
+    /// its two sides' levels by how many of their samples fell on each side; the image's noise
+    /// estimate trims such pairs as an edge's and leaves that noise out, while the scatter along
+    /// the edge measures it.
+    Scatter,
+}
+
 /// `color` moved towards its mean along each pixel's edge (`reach` pixels each way, the
-/// directions of `normals`), as far as the noise `variance` covers, with `tolerance` as the
+/// directions of `normals`), as far as the noise of `gate` covers, with `tolerance` as the
 /// slack of `blend`. Rows skipped once `meter` is cancelled.
 pub fn along_edges(
     color: &Image,
     variance: &Image,
     guide: &Guide,
     normals: &[(f32, f32)],
-    (reach, tolerance): (usize, f64),
+    (reach, tolerance, gate): (usize, f64, Gate),
     meter: &Meter,
 ) -> Image {
     let (w, h) = color.dims();
@@ -54,11 +69,15 @@ pub fn along_edges(
                 px.copy_from_slice(&c[3 * i..3 * i + 3]);
                 let var = v[3 * i..3 * i + 3].iter().map(|&s| clean(s)).sum::<f64>() / 3.0;
                 let pos = (x as f32, y as f32);
-                let share = jump_share(guide, pos, normals[i], reach, scratch);
+                let share = jump_share(guide, pos, normals[i], reach, gate, scratch);
                 if share <= 0.0 || var <= 0.0 {
                     continue;
                 }
-                let mean = mean_along(&planes, (w, h), pos, normals[i], reach);
+                let (mean, scatter) = mean_along(&planes, (w, h), pos, normals[i], reach);
+                let var = match gate {
+                    Gate::Noise => var,
+                    Gate::Scatter => var.max(scatter),
+                };
                 let change: [f64; 3] = std::array::from_fn(|k| share * (mean[k] - px[k] as f64));
                 gated_move(px, change, var, tolerance);
             }
@@ -77,33 +96,47 @@ fn along(
     (-r..=r).map(move |o| (x - o as f32 * ny, y + o as f32 * nx))
 }
 
-/// The colour's mean along the edge, per channel.
+/// The colour's mean along the edge, per channel, and its scatter there: the sample variance of
+/// the points along the edge, averaged over the channels.
 fn mean_along(
     planes: &[Vec<f32>; 3],
     (w, h): (usize, usize),
     pos: (f32, f32),
     n: (f32, f32),
     reach: usize,
-) -> [f64; 3] {
-    let mut sum = [0.0f64; 3];
+) -> ([f64; 3], f64) {
+    let count = 2 * reach + 1;
+    let (mut sum, mut squares) = ([0.0f64; 3], [0.0f64; 3]);
     for (x, y) in along(pos, n, reach) {
         let (i, f) = bilinear(x, y, w, h);
         for k in 0..3 {
-            sum[k] += mix(&planes[k], i, f) as f64;
+            let v = mix(&planes[k], i, f) as f64;
+            sum[k] += v;
+            squares[k] += v * v;
         }
     }
-    sum.map(|s| s / (2 * reach + 1) as f64)
+    let mean = sum.map(|s| s / count as f64);
+    let scatter = (0..3)
+        .map(|k| (squares[k] - sum[k] * mean[k]).max(0.0))
+        .sum::<f64>()
+        / (3 * (count - 1)) as f64;
+    (mean, scatter)
 }
 
 /// How much of the guide's variation along the edge through `pos` is jumps, against the edge's
 /// contrast (a side's value against the other's): 0 off an edge, on an edge with another near it,
 /// and on a smooth edge; 1 when the pixels along it are each one side or the other at random.
-/// `scratch` holds `2·reach + 6` guide pixels.
+/// Under [`Gate::Scatter`] also 0 where the guide's mean along the edge is not a mix of its two
+/// sides (beyond either side, or off the line between them by more than a quarter of their
+/// distance): the pixels along a colour edge that are each some share of its sides average to
+/// such a mix, structure along it (a reflection, a pattern) need not. `scratch` holds
+/// `2·reach + 6` guide pixels.
 fn jump_share(
     guide: &Guide,
     (x, y): (f32, f32),
     (nx, ny): (f32, f32),
     reach: usize,
+    gate: Gate,
     scratch: &mut [f32],
 ) -> f64 {
     let g = guide.planes.len();
@@ -138,7 +171,27 @@ fn jump_share(
             *m += s / count;
         }
     }
+    if gate == Gate::Scatter && !a_mix_of(mean, a, b, contrast) {
+        return 0.0;
+    }
     let spread: f64 = samples.chunks_exact(g).map(|s| dist(s, mean)).sum();
     let spread = spread / count as f64;
     (spread / (contrast / 4.0)).clamp(0.0, 1.0)
+}
+
+/// Whether `m` lies between `a` and `b` (its projection on the line from `b` to `a` within the
+/// two) and off that line by at most a quarter of their distance; `contrast` is |a − b|².
+fn a_mix_of(m: &[f32], a: &[f32], b: &[f32], contrast: f64) -> bool {
+    let dot: f64 = m
+        .iter()
+        .zip(a.iter().zip(b))
+        .map(|(&m, (&a, &b))| (m - b) as f64 * (a - b) as f64)
+        .sum();
+    let t = dot / contrast;
+    let off: f64 = m
+        .iter()
+        .zip(a.iter().zip(b))
+        .map(|(&m, (&a, &b))| (m as f64 - (b as f64 + t * (a - b) as f64)).powi(2))
+        .sum();
+    (0.0..=1.0).contains(&t) && off <= contrast / 16.0
 }

@@ -12,7 +12,8 @@
 //! normal the stage passes the image through with a note. Each pixel reads only its inputs, so any
 //! thread count gives the same bits (docs/ALGORITHM.md §8, "Edges at few samples"). Then, where the
 //! renderer's pixel filter is wider than a box (read from the features' edges, `across`), each edge
-//! pixel takes its share of the pixels across its edge, as far as its noise covers.
+//! pixel takes its share of the pixels across its edge, as far as its noise covers. Last, the same
+//! along-edge step on the edges only the colour shows (`colour`): a light's rim, a hard shadow.
 //!
 //! ```toml
 //! [[stage]]
@@ -24,10 +25,12 @@
 //! tolerance = 1.0      # slack on the noise, as `blend`'s
 //! across = true        # spread across edges as the renderer's filter does (estimated)
 //! stack_across = false # and on a `--temporal` frame that moved (its merge already spreads edges)
+//! colour = true        # the along-edge step on edges only the colour shows
 //! ```
 
 mod across;
 mod along;
+mod colour;
 mod orient;
 
 use serde::{Deserialize, Serialize};
@@ -37,7 +40,8 @@ use crate::error::{Error, Result};
 use crate::filters::stage::{parse_params, Context, Stage, StageIo};
 
 pub use across::{across_edges, spread, Spread};
-pub use along::along_edges;
+pub use along::{along_edges, Gate};
+pub use colour::{along_colour_edges, colour_guide};
 pub use orient::{normals, Guide};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -58,6 +62,10 @@ pub struct CoverageParams {
     /// whose edges already carry the resampling's spread, and spreading them again by the
     /// renderer's filter softens them twice. A still shot merges whole pixels and keeps the step.
     pub stack_across: bool,
+    /// Then the along-edge step again on the edges the tone-mapped colour shows and the features
+    /// do not (a light's rim on a ceiling of its albedo, a hard shadow), gated by the larger of the
+    /// noise and the colour's scatter along the edge. Needs no features.
+    pub colour: bool,
 }
 
 impl Default for CoverageParams {
@@ -68,6 +76,7 @@ impl Default for CoverageParams {
             tolerance: 1.0,
             across: true,
             stack_across: false,
+            colour: true,
         }
     }
 }
@@ -132,36 +141,49 @@ impl Stage for CoverageStage {
                 "does not match the filtered image's size",
             ));
         }
-        let Some(guide) = Guide::new(buffers.features(), color.dims()) else {
-            ctx.note(format!(
-                "{}: no albedo or normal to find edges by; the image passes unchanged",
-                self.id
-            ));
-            let same = color.par_clone();
-            buffers.insert(self.io.output.clone(), same)?;
-            return Ok(0);
-        };
-        let dirs = normals(&guide);
         let p = &self.params;
-        let out = along_edges(
-            color,
-            variance,
-            &guide,
-            &dirs,
-            (p.reach, p.tolerance),
-            &ctx.meter,
-        );
+        let out = match Guide::new(buffers.features(), color.dims()) {
+            Some(guide) => {
+                let dirs = normals(&guide);
+                let out = along_edges(
+                    color,
+                    variance,
+                    &guide,
+                    &dirs,
+                    (p.reach, p.tolerance, Gate::Noise),
+                    &ctx.meter,
+                );
+                ctx.meter.check()?;
+                if p.across && (p.stack_across || !buffers.resampled()) {
+                    let share = spread(&guide, &dirs).share();
+                    across_edges(
+                        &out,
+                        variance,
+                        &guide,
+                        &dirs,
+                        (share, p.tolerance),
+                        &ctx.meter,
+                    )
+                } else {
+                    out
+                }
+            }
+            None => {
+                let rest = if p.colour {
+                    "only the colour's own edges are used"
+                } else {
+                    "the image passes unchanged"
+                };
+                ctx.note(format!(
+                    "{}: no albedo or normal to find edges by; {rest}",
+                    self.id
+                ));
+                color.par_clone()
+            }
+        };
         ctx.meter.check()?;
-        let out = if p.across && (p.stack_across || !buffers.resampled()) {
-            let share = spread(&guide, &dirs).share();
-            across_edges(
-                &out,
-                variance,
-                &guide,
-                &dirs,
-                (share, p.tolerance),
-                &ctx.meter,
-            )
+        let out = if p.colour {
+            along_colour_edges(&out, variance, (p.reach, p.tolerance), &ctx.meter)
         } else {
             out
         };

@@ -1,7 +1,7 @@
 //! The coverage stage on edges built to show each case: a staircase of few samples, a clean
 //! anti-aliased edge, stripes, no noise, and the hard images.
 
-use super::{along_edges, normals, Guide};
+use super::{along_edges, normals, Gate, Guide};
 use crate::image::Image;
 use crate::meter::Meter;
 use crate::render_set::{Feature, FeatureSet};
@@ -28,7 +28,14 @@ fn run(color: &Image, set: &FeatureSet, noise: f32) -> Image {
     let guide = Guide::new(set, color.dims()).expect("an albedo");
     let dirs = normals(&guide);
     let variance = Image::filled(color.dims().0, color.dims().1, 3, noise);
-    along_edges(color, &variance, &guide, &dirs, (1, 1.0), &Meter::default())
+    along_edges(
+        color,
+        &variance,
+        &guide,
+        &dirs,
+        (1, 1.0, Gate::Noise),
+        &Meter::default(),
+    )
 }
 
 /// A pixel of the edge columns shows one side at random (one sample a pixel, half the pixel's area

@@ -1,0 +1,164 @@
+//! The colour-edge step on edges no feature shows: a light's rim of few samples, a clean edge, a
+//! thin line, stripes, and the hard images.
+
+use super::along_colour_edges;
+use crate::image::Image;
+use crate::meter::Meter;
+
+/// The light's level and the ceiling's, and the share of the rim row's area the light covers.
+const LIGHT: f32 = 6.5;
+const CEILING: f32 = 0.05;
+const COVER: f64 = 0.28;
+
+/// 24×24: ceiling above row 11, light below it; row 11 is the rim, each pixel the mean of four
+/// samples that each land on the light with chance [`COVER`] (or, with `clean`, the exact mix).
+fn rim(seed: u64, clean: bool) -> Image {
+    let mut next = crate::kernels::trim::tests::xorshift(seed);
+    let mut uniform = move || (next() >> 11) as f64 / (1u64 << 53) as f64;
+    let row: Vec<f32> = (0..24)
+        .map(|_| {
+            if clean {
+                return (COVER * LIGHT as f64 + (1.0 - COVER) * CEILING as f64) as f32;
+            }
+            let hits = (0..4).filter(|_| uniform() < COVER).count() as f32;
+            (hits * LIGHT + (4.0 - hits) * CEILING) / 4.0
+        })
+        .collect();
+    Image::from_fn(24, 24, 3, |x, y, _| match y {
+        0..=10 => CEILING,
+        11 => row[x],
+        _ => LIGHT,
+    })
+}
+
+fn run(color: &Image, noise: f32) -> Image {
+    let (w, h) = color.dims();
+    let variance = Image::filled(w, h, 3, noise);
+    along_colour_edges(color, &variance, (1, 1.0), &Meter::default())
+}
+
+/// Squared error of the rim row against its exact mix, away from the image's sides.
+fn rim_error(img: &Image) -> f64 {
+    let mix = COVER * LIGHT as f64 + (1.0 - COVER) * CEILING as f64;
+    (2..22)
+        .map(|x| (img.pixel(11 * 24 + x)[0] as f64 - mix).powi(2))
+        .sum()
+}
+
+#[test]
+fn a_lights_rim_of_few_samples_moves_towards_its_mix_though_its_noise_reads_small() {
+    // The image's noise estimate trims the rim's pairs as an edge's and reads the ceiling's small
+    // noise there; only the colour's scatter along the rim says how far its pixels may move. As
+    // for a feature edge, a quarter less error is what a working step must at least reach (the
+    // noise's own gate moves these pixels by less than a thousandth).
+    for seed in [3, 5, 8] {
+        let color = rim(seed, false);
+        let out = run(&color, 1e-4);
+        let (before, after) = (rim_error(&color), rim_error(&out));
+        assert!(
+            after < 0.75 * before,
+            "seed {seed}: error {before} → {after}"
+        );
+        for y in (0..9).chain(14..24) {
+            for x in 0..24 {
+                assert_eq!(out.pixel(y * 24 + x), color.pixel(y * 24 + x), "({x}, {y})");
+            }
+        }
+    }
+}
+
+#[test]
+fn a_clean_rim_passes_unchanged() {
+    let color = rim(3, true);
+    let out = run(&color, 1e-4);
+    for (a, b) in out.data().iter().zip(color.data()) {
+        assert!((a - b).abs() <= 1e-6 * b.abs().max(1.0), "{a} against {b}");
+    }
+}
+
+#[test]
+fn a_thin_line_and_stripes_pass_unchanged() {
+    // A one-pixel line: both sides of it are the same ceiling, so it is no edge between two.
+    let mut next = crate::kernels::trim::tests::xorshift(13);
+    let line: Vec<f32> = (0..24).map(|_| (next() >> 62) as f32 * 2.0).collect();
+    let color = Image::from_fn(24, 24, 3, |x, y, _| if y == 11 { line[x] } else { CEILING });
+    assert_eq!(run(&color, 1e-4), color);
+    // Two-pixel stripes whose boundary pixels show a random side: edges three pixels apart.
+    let flips: Vec<bool> = (0..24 * 24).map(|_| next() >> 63 == 1).collect();
+    let stripe =
+        |x: usize, y: usize| ((x / 2) % 2 == 1) ^ (x.is_multiple_of(2) && flips[y * 24 + x]);
+    let color = Image::from_fn(24, 24, 3, |x, y, _| if stripe(x, y) { 0.9 } else { 0.1 });
+    let out = run(&color, 1e-4);
+    let contrast = |img: &Image| {
+        let (mut s, mut n) = ([0.0f64; 2], [0usize; 2]);
+        for i in 0..24 * 24 {
+            let k = stripe(i % 24, i / 24) as usize;
+            s[k] += img.pixel(i)[0] as f64;
+            n[k] += 1;
+        }
+        s[1] / n[1] as f64 - s[0] / n[0] as f64
+    };
+    let (before, after) = (contrast(&color), contrast(&out));
+    assert!(after > 0.97 * before, "stripe contrast {before} → {after}");
+}
+
+#[test]
+fn the_same_bits_on_one_and_two_threads() {
+    let color = rim(5, false);
+    let on = |threads| {
+        crate::options::thread_pool(threads)
+            .unwrap()
+            .install(|| run(&color, 1e-4))
+    };
+    assert_eq!(on(1), on(2));
+}
+
+#[test]
+fn hard_images_stay_finite_and_non_negative() {
+    for (w, h) in [(1, 1), (1, 5), (5, 1), (2, 2), (3, 7), (24, 24)] {
+        for value in [0.0f32, 1.0, 1e6, f32::MAX] {
+            let mut color = Image::filled(w, h, 3, value);
+            color.pixel_mut(0).fill(if value > 0.0 { 0.0 } else { 1e6 });
+            for noise in [0.0, 1e-30, 1e3] {
+                let out = run(&color, noise);
+                assert!(
+                    out.data().iter().all(|v| v.is_finite() && *v >= 0.0),
+                    "{w}×{h} at {value}, noise {noise}: {:?}",
+                    &out.data()[..out.data().len().min(12)]
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn a_pattern_along_an_edge_that_is_no_mix_of_its_sides_passes_unchanged() {
+    // Red spots along the boundary of a grey ceiling and a white light: their mean along the edge
+    // lies off the line between the two sides, so they are the edge's own structure, not pixels
+    // each some share of the two sides.
+    let mut next = crate::kernels::trim::tests::xorshift(21);
+    let spots: Vec<bool> = (0..24).map(|_| next() >> 63 == 1).collect();
+    let color = Image::from_fn(24, 24, 3, |x, y, c| match y {
+        0..=10 => 0.2,
+        11 if spots[x] => [2.0, 0.0, 0.0][c],
+        11 => 0.6,
+        _ => 1.0,
+    });
+    // The rows beside it may follow the wobble of the edge's direction near a spot (and at the
+    // image's border) by a hair.
+    let out = run(&color, 1e-4);
+    for i in 0..24 * 24 {
+        let (a, b) = (out.pixel(i), color.pixel(i));
+        if i / 24 == 11 {
+            assert_eq!(a, b, "({}, 11)", i % 24);
+        }
+        for (a, b) in a.iter().zip(b) {
+            assert!(
+                (a - b).abs() <= 1e-2,
+                "({}, {}): {a} against {b}",
+                i % 24,
+                i / 24
+            );
+        }
+    }
+}
