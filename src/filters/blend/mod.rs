@@ -17,6 +17,8 @@
 //! stack_noise_level = 0.0 # the same for a variance measured from a shot's frames (`--temporal`)
 //! ```
 
+#[cfg(test)]
+mod cap_tests;
 mod error_estimate;
 mod noise_level;
 mod weights;
@@ -207,7 +209,7 @@ mod tests {
     /// The blend stage of `full` (noise level 0.75, none for a stack) over the noise-level
     /// module's blurred band, with its variance from a renderer or a stack, `noise_level` `q`.
     fn band_blended(from_stack: bool, q: f64) -> Image {
-        let (color, filtered, variance) = super::noise_level::tests::blurred_band();
+        let (color, filtered, variance) = super::cap_tests::blurred_band();
         let mut set = RenderSet::new(color);
         set.noise.variance = Some(variance);
         set.noise.from_stack = from_stack;
