@@ -111,6 +111,21 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
         "without the colour's own edges",
     )?);
     out.extend(dark_dot_variants(spec)?);
+    // A `blend` stage's noise-level cap (off unless set): the row with it off.
+    for (i, stage) in spec.stages.iter().enumerate() {
+        let on = stage
+            .params
+            .get("noise_level")
+            .and_then(toml::Value::as_float);
+        if stage.kind == "blend" && on.is_some_and(|q| q > 0.0) {
+            let mut v = spec.clone();
+            v.stages[i].set(&["noise_level"], toml::Value::Float(0.0))?;
+            out.push(Variant {
+                name: format!("{} without the noise-level cap", stage.id),
+                spec: v,
+            });
+        }
+    }
     out.extend(noise_variants(spec)?);
     let paths = feature_paths(spec);
     if !paths.is_empty() {

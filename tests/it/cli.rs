@@ -337,6 +337,7 @@ fn ablate_prints_and_writes_the_table() {
         "coverage without the across-edge spread",
         "coverage without the colour's own edges",
         "outlier one-sided (dark dots kept)",
+        "blend without the noise-level cap",
         "without prefilter",
         "without pyramid",
         "without atrous",
@@ -358,8 +359,8 @@ fn ablate_prints_and_writes_the_table() {
     // Header, then: full, nine stages removed (the noise stage is not: later stages read it; the
     // outlier's row takes its spread with it), the reliability's median centre, coverage without
     // its across-edge spread and without its colour-edge step, the outlier without dark dots, the
-    // four noise rows, eight weights zeroed, plain SID.
-    assert_eq!(text.lines().count(), 1 + 27, "{text}");
+    // blend without its noise-level cap, the four noise rows, eight weights zeroed, plain SID.
+    assert_eq!(text.lines().count(), 1 + 28, "{text}");
     assert!(text.starts_with("variant,ssim,psnr,relmse,seconds,delta_ssim"));
     let bad = gsid(&[
         "ablate",

@@ -1,6 +1,7 @@
 //! The `blend` stage: never worse than the input where the input is good. Mixes a filtered image
 //! with the colour it came from, per pixel, by the Wiener weight of `keep_weights` (in `weights`;
-//! the error estimate it rests on in `error_estimate`).
+//! the error estimate it rests on in `error_estimate`; the image's noise-level function that caps
+//! the tested noise where the local estimate reads structure in `noise_level`).
 //!
 //! ```toml
 //! [[stage]]
@@ -12,9 +13,14 @@
 //! tolerance = 1.5        # slack for the error of both estimates (the presets use 2)
 //! stack_tolerance = 1.0  # the same for a variance measured from a shot's frames (`--temporal`)
 //! leak = 4.0             # a rise beyond √leak noise σ is light leaked from a neighbour
+//! noise_level = 0.0      # quantile of the image's noise-level function capping the test (0: off)
+//! stack_noise_level = 0.0 # the same for a variance measured from a shot's frames (`--temporal`)
 //! ```
 
+#[cfg(test)]
+mod cap_tests;
 mod error_estimate;
+mod noise_level;
 mod weights;
 
 use serde::{Deserialize, Serialize};
@@ -40,6 +46,16 @@ pub struct BlendParams {
     /// How many noise variances above its input a pixel's filtered value may rise before it
     /// counts as light leaked from a neighbour the features cannot tell apart.
     pub leak: f64,
+    /// Above 0: the quantile (at most 1) of the image's noise-level function (the local
+    /// estimates of pixels as bright, across the image) that caps the variance a pixel's change is
+    /// tested against, where the filter took light from a pixel that is no spike and its output
+    /// still shows structure there: a highlight or rim the estimate read as noise comes back. 0
+    /// tests against the local estimate alone. Costs a sort of the image's pixels.
+    pub noise_level: f64,
+    /// The same where the variance was measured from a shot's frames (`--temporal`): pooled over
+    /// the window's samples, it does not read structure as the image's estimate does, and the cap
+    /// measured a loss there (docs/RESULTS.md "Keeping what the input has right").
+    pub stack_noise_level: f64,
 }
 
 impl Default for BlendParams {
@@ -50,6 +66,8 @@ impl Default for BlendParams {
             tolerance: 1.5,
             stack_tolerance: 1.0,
             leak: 4.0,
+            noise_level: 0.0,
+            stack_noise_level: 0.0,
         }
     }
 }
@@ -65,6 +83,14 @@ impl BlendParams {
         ] {
             if !(value > 0.0 && value <= 1e6) {
                 return Err(Error::range(key, value, "above 0, at most 1e6"));
+            }
+        }
+        for (key, value) in [
+            ("noise_level", self.noise_level),
+            ("stack_noise_level", self.stack_noise_level),
+        ] {
+            if !(0.0..=1.0).contains(&value) {
+                return Err(Error::range(key, value, "0 (off) to 1"));
             }
         }
         Ok(())
@@ -113,16 +139,16 @@ impl Stage for BlendStage {
             &self.params.original,
             &self.params.noise,
         )?;
-        let tolerance = if buffers.variance_from_stack() {
-            self.params.stack_tolerance
+        let (tolerance, noise_level) = if buffers.variance_from_stack() {
+            (self.params.stack_tolerance, self.params.stack_noise_level)
         } else {
-            self.params.tolerance
+            (self.params.tolerance, self.params.noise_level)
         };
         let keep = keep_weights_metered(
             crate::kernels::simd::Kernel::detect(),
             (original, filtered, variance),
             buffers.features(),
-            (tolerance, self.params.leak),
+            (tolerance, self.params.leak, noise_level),
             &ctx.meter,
         );
         ctx.meter.check()?;
@@ -177,6 +203,42 @@ mod tests {
         assert!(
             (stack / renderer - 0.5).abs() < 1e-3,
             "{stack} against {renderer}"
+        );
+    }
+
+    /// The blend stage of `full` (noise level 0.75, none for a stack) over the noise-level
+    /// module's blurred band, with its variance from a renderer or a stack, `noise_level` `q`.
+    fn band_blended(from_stack: bool, q: f64) -> Image {
+        let (color, filtered, variance) = super::cap_tests::blurred_band();
+        let mut set = RenderSet::new(color);
+        set.noise.variance = Some(variance);
+        set.noise.from_stack = from_stack;
+        let mut buffers = Buffers::from(set);
+        buffers.insert("out", filtered).unwrap();
+        buffers.insert_same("noise", "variance").unwrap();
+        let table: toml::Table = toml::from_str(&format!(
+            "tolerance = 2.0\nnoise_level = {q}\nstack_noise_level = 0.0"
+        ))
+        .unwrap();
+        let io = StageIo {
+            input: "out".into(),
+            output: "out".into(),
+        };
+        let stage = BlendStage::from_table("blend", io, table).unwrap();
+        let mut ctx = Context::new(0, false);
+        stage.execute(&mut buffers, &mut ctx).unwrap();
+        buffers.get("out").unwrap().clone()
+    }
+
+    #[test]
+    fn the_noise_level_cap_is_off_for_a_stack_measured_variance() {
+        // A renderer's (or the image's) variance: the band's edge comes back towards the input.
+        let (single, plain) = (band_blended(false, 0.75), band_blended(false, 0.0));
+        assert!(single.at(22, 10)[0] > plain.at(22, 10)[0] + 0.1);
+        // A stack's: `stack_noise_level` 0, the blend as without the cap.
+        assert_eq!(
+            band_blended(true, 0.75).data(),
+            band_blended(true, 0.0).data()
         );
     }
 

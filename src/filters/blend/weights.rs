@@ -4,7 +4,7 @@
 use rayon::prelude::*;
 
 use super::error_estimate::{blend_error_row, trimmed_chi2, BLEND_RADIUS};
-use crate::filters::noise::measured::clean;
+use super::noise_level::{pixel_variance, tested_variance, NoiseLevel};
 use crate::filters::noise::surface::{Mates, Surface};
 use crate::image::{par_vec, Image};
 use crate::kernels::padded::{Margin, Padded};
@@ -33,21 +33,26 @@ pub fn keep_weights(
         kernel,
         inputs,
         features,
-        (tolerance, leak),
+        (tolerance, leak, 0.0),
         &Meter::default(),
     )
 }
 
-/// [`keep_weights`] of (colour, filtered, variance) with (tolerance, leak), skipping its remaining
-/// rows once `meter` is cancelled (the weights are then unfinished, for the caller to throw away).
+/// [`keep_weights`] of (colour, filtered, variance) with (tolerance, leak, noise_level), skipping its
+/// remaining rows once `meter` is cancelled (the weights are then unfinished, for the caller to
+/// throw away). `noise_level` above 0 is the quantile of the image's noise-level function that caps
+/// the tested variance where the estimate may read structure (`noise_level`); 0 leaves it alone.
 pub fn keep_weights_metered(
     kernel: Kernel,
     (color, filtered, variance): (&Image, &Image, &Image),
     features: &FeatureSet,
-    (tolerance, leak): (f64, f64),
+    (tolerance, leak, noise_level): (f64, f64, f64),
     meter: &Meter,
 ) -> Vec<f32> {
     let (w, h) = color.dims();
+    let level = (noise_level > 0.0)
+        .then(|| NoiseLevel::fit(filtered, variance, noise_level))
+        .flatten();
     let surface = Surface::new(features, (w, h));
     let (c, f, v) = (color.data(), filtered.data(), variance.data());
     let mates = surface.mates_metered(w, h, BLEND_RADIUS as usize, meter);
@@ -76,31 +81,35 @@ pub fn keep_weights_metered(
             row_kernel!(kernel, blend_error_row(diff2: &Padded, mates: &Mates, y: usize, out: &mut [(f64, usize)]));
             for (x, (keep, &(err, n))) in keep.iter_mut().zip(row.iter()).enumerate() {
                 let i = y * w + x;
-                *keep = keep_weight(&c[3 * i..3 * i + 3], &f[3 * i..3 * i + 3], &v[3 * i..3 * i + 3], err, n, tolerance, leak);
+                let var = pixel_variance(&v[3 * i..3 * i + 3]);
+                let tested = match &level {
+                    Some(level) => tested_variance(level, (c, f), (w, h), (x, y), var),
+                    None => var,
+                };
+                *keep = keep_weight(&c[3 * i..3 * i + 3], &f[3 * i..3 * i + 3], (var, tested), (err, n), tolerance, leak);
             }
         });
     keep
 }
 
 /// One pixel's weight of [`keep_weights`]: its colour `c`, filtered value `f`, noise variance
-/// `v`, and the trimmed mean `err` of (f − c)² over its `n` surface-mates.
+/// `var` and the variance its change is tested against (`tested`, at most `var`), and the
+/// trimmed mean `err` of (f − c)² over its `n` surface-mates.
 fn keep_weight(
     c: &[f32],
     f: &[f32],
-    v: &[f32],
-    err: f64,
-    n: usize,
+    (var, tested): (f64, f64),
+    (err, n): (f64, usize),
     tolerance: f64,
     leak: f64,
 ) -> f32 {
-    let var = v.iter().map(|&x| clean(x)).sum::<f64>() / 3.0;
     if var <= 0.0 || n == 0 {
         return 0.0;
     }
     // Divided by the constant of its own n: with few mates, as at a geometric edge, little is
     // trimmed.
     let err = err / trimmed_chi2(n);
-    let keep = (tolerance * var / err.max(f64::MIN_POSITIVE)).min(1.0);
+    let keep = (tolerance * tested / err.max(f64::MIN_POSITIVE)).min(1.0);
     // A pixel the filter made far brighter than its own noise allows took light from a neighbour
     // the features could not tell apart (an emitter beside the ceiling it lies in): trimmed away
     // above, so checked alone. Darker is left alone: that is a firefly removed.

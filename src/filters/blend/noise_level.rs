@@ -1,0 +1,216 @@
+//! A second opinion on the noise for the blend's test: the image's noise-level function (how
+//! noisy pixels of each brightness are, read robustly from the local estimates of the whole
+//! image) caps a pixel's local estimate where that estimate may be reading structure as noise.
+//!
+//! The local estimate counts a reflected highlight, a light's anti-aliased rim or a sharp texture
+//! edge that the features do not explain as noise; the blend then keeps the filter's blur there.
+//! Where a pixel's estimate sits far above what pixels as bright show across the image, the filter
+//! took light away from it, the pixel is no spike by its own estimate, and the filtered image
+//! itself still shows structure around it, the change is tested against the image's level instead,
+//! so the input comes back in proportion. At few samples a pixel's noise does vary that much, but
+//! there the filtered image is smooth, or the input is below it (a path-traced pixel's noise is
+//! skewed: most samples land below the mean), and nothing changes.
+
+use rayon::prelude::*;
+
+use crate::filters::noise::measured::clean;
+use crate::image::Image;
+
+/// How many equal-count brightness bins the noise-level function is read in.
+const BINS: usize = 16;
+/// Fewest pixels a bin needs for its quantile to be a reading: smaller images get no cap.
+const MIN_BIN: usize = 21;
+/// Darkest luminance the function tells apart (its bins are in log luminance).
+const DARK: f64 = 1e-4;
+/// A pixel whose input is further above the filtered value than this many of its own noise σ
+/// is a spike the filter rightly took out: its estimate is not capped.
+const SPIKE_SIGMAS: f64 = 2.0;
+/// How many σ of the image's level a change must exceed to be tested against it: a smaller one
+/// the level's own noise explains, and the local estimate is not doubted.
+const SIGNIFICANT: f64 = 3.0;
+/// How many times the estimate the filtered image's own 3×3 variance must be for the estimate to
+/// count as possibly reading structure (its σ twice the estimate's): beside an emitter or a
+/// highlight the output still shows, not on a surface the filter left merely uneven.
+const STRUCTURE: f64 = 4.0;
+
+/// The image's noise-level function: per brightness bin (log luminance of the filtered image), a
+/// quantile of the local variance estimates, interpolated in log-log between the bins' centres.
+#[derive(Clone, Debug, PartialEq)]
+pub(super) struct NoiseLevel {
+    /// Each bin's median ln luminance, increasing.
+    centres: Vec<f64>,
+    /// Each bin's ln variance at the quantile.
+    levels: Vec<f64>,
+}
+
+/// ln of a pixel's luminance, floored at `DARK`; anything not finite counts as dark.
+fn ln_luminance(p: &[f32]) -> f64 {
+    let l = 0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64;
+    if l.is_finite() {
+        l.max(DARK).ln()
+    } else {
+        DARK.ln()
+    }
+}
+
+/// A pixel's variance as the blend reads it: the mean of its channels', not finite or negative
+/// counting as 0.
+pub(super) fn pixel_variance(v: &[f32]) -> f64 {
+    v.iter().map(|&x| clean(x)).sum::<f64>() / 3.0
+}
+
+/// The `q` quantile of `values` (linear between order statistics, as numpy's default), which it
+/// reorders.
+fn quantile(values: &mut [f64], q: f64) -> f64 {
+    let at = q * (values.len() - 1) as f64;
+    let lo = at.floor() as usize;
+    let (_, &mut low, above) = values.select_nth_unstable_by(lo, f64::total_cmp);
+    let high = above.iter().copied().min_by(f64::total_cmp).unwrap_or(low);
+    low + (at - lo as f64) * (high - low)
+}
+
+impl NoiseLevel {
+    /// The function of `filtered`'s brightness against `variance`'s local estimates at quantile
+    /// `q` (0..=1); `None` when the image has too few pixels for every bin to be a reading.
+    pub(super) fn fit(filtered: &Image, variance: &Image, q: f64) -> Option<NoiseLevel> {
+        let n = filtered.pixel_count();
+        if n / BINS < MIN_BIN {
+            return None;
+        }
+        let mut pairs: Vec<(f64, f64)> = (0..n)
+            .into_par_iter()
+            .map(|i| {
+                let v = pixel_variance(variance.pixel(i));
+                (ln_luminance(filtered.pixel(i)), v)
+            })
+            .collect();
+        // Ties in both keys are equal pairs: the order is the same whatever the threads.
+        pairs.par_sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
+        let mut centres: Vec<f64> = Vec::with_capacity(BINS);
+        let mut ranges: Vec<(usize, usize)> = Vec::with_capacity(BINS);
+        for k in 0..BINS {
+            let (start, end) = (k * n / BINS, (k + 1) * n / BINS);
+            let centre = pairs[(start + end) / 2].0;
+            // Bins of one brightness (a black background) are one reading.
+            match (centres.last(), ranges.last_mut()) {
+                (Some(&last), Some(range)) if last == centre => range.1 = end,
+                _ => {
+                    centres.push(centre);
+                    ranges.push((start, end));
+                }
+            }
+        }
+        let levels = ranges
+            .iter()
+            .map(|&(start, end)| {
+                let mut v: Vec<f64> = pairs[start..end].iter().map(|p| p.1).collect();
+                quantile(&mut v, q).max(f64::MIN_POSITIVE).ln()
+            })
+            .collect();
+        Some(NoiseLevel { centres, levels })
+    }
+
+    /// The function's variance at the brightness of filtered pixel `f`: held at the end bins'
+    /// levels beyond them.
+    pub(super) fn at(&self, f: &[f32]) -> f64 {
+        let x = ln_luminance(f);
+        let (c, l) = (&self.centres, &self.levels);
+        let above = c.partition_point(|&centre| centre < x);
+        let ln = if above == 0 {
+            l[0]
+        } else if above == c.len() {
+            l[c.len() - 1]
+        } else {
+            let t = (x - c[above - 1]) / (c[above] - c[above - 1]);
+            l[above - 1] + t * (l[above] - l[above - 1])
+        };
+        ln.exp()
+    }
+}
+
+/// The variance the blend tests pixel (x, y)'s change against: its own estimate `var`, or the
+/// image's level where that is lower and the pixel passes the three checks of the module's
+/// comment. `color`, `filtered` are whole images (RGB).
+pub(super) fn tested_variance(
+    level: &NoiseLevel,
+    (color, filtered): (&[f32], &[f32]),
+    (w, h): (usize, usize),
+    (x, y): (usize, usize),
+    var: f64,
+) -> f64 {
+    let i = y * w + x;
+    let (c, f) = (&color[3 * i..3 * i + 3], &filtered[3 * i..3 * i + 3]);
+    let cap = level.at(f);
+    if cap >= var {
+        return var;
+    }
+    let (mut rise, mut change2) = (0.0, 0.0);
+    for k in 0..3 {
+        let d = c[k] as f64 - f[k] as f64;
+        rise += d;
+        change2 += d * d;
+    }
+    // The filter took light away (the input above it on average), more than the image's level
+    // explains but not a spike's worth by the pixel's own estimate; and the filtered image's own
+    // variation over the 3×3 window (edges clamped) is well above the estimate: structure the
+    // estimate may have read. Anything not finite keeps the estimate.
+    let change2 = change2 / 3.0;
+    let took_light = rise > 0.0
+        && change2 > SIGNIFICANT * SIGNIFICANT * cap
+        && change2 <= SPIKE_SIGMAS * SPIKE_SIGMAS * var;
+    if took_light && window_variance(filtered, (w, h), (x, y)) >= STRUCTURE * var {
+        cap
+    } else {
+        var
+    }
+}
+
+/// The mean over channels of the variance of `image`'s 3×3 window around (x, y), its edges
+/// clamped.
+fn window_variance(image: &[f32], (w, h): (usize, usize), (x, y): (usize, usize)) -> f64 {
+    let mut sum = [0.0f64; 3];
+    let mut sum2 = [0.0f64; 3];
+    for dy in -1isize..=1 {
+        let yy = (y as isize + dy).clamp(0, h as isize - 1) as usize;
+        for dx in -1isize..=1 {
+            let xx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
+            let p = &image[3 * (yy * w + xx)..3 * (yy * w + xx) + 3];
+            for k in 0..3 {
+                let v = p[k] as f64;
+                sum[k] += v;
+                sum2[k] += v * v;
+            }
+        }
+    }
+    (0..3)
+        .map(|k| (sum2[k] / 9.0 - (sum[k] / 9.0).powi(2)).max(0.0))
+        .sum::<f64>()
+        / 3.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_level_follows_brightness_and_needs_enough_pixels() {
+        // Variance proportional to brightness, one brightness a pixel: the function reads it
+        // back between the bins and holds it beyond them.
+        let (w, h) = (64, 32);
+        let brightness = |i: usize| 1e-3 * (i + 1) as f32;
+        let filtered = Image::from_fn(w, h, 3, |x, y, _| brightness(y * w + x));
+        let variance = Image::from_fn(w, h, 3, |x, y, _| 1e-3 * brightness(y * w + x));
+        let level = NoiseLevel::fit(&filtered, &variance, 0.5).unwrap();
+        for i in [200usize, 700, 1111, 1900] {
+            let l = brightness(i);
+            let got = level.at(&[l; 3]);
+            assert!((got / (1e-3 * l as f64) - 1.0).abs() < 0.05, "{l}: {got}");
+        }
+        let top = level.at(&[100.0; 3]);
+        assert!(top > 1e-3 * 1.9 && top < 1e-3 * 2.048, "{top}");
+        // Bad values read as dark and as no noise, not as NaN.
+        assert!(level.at(&[f32::NAN; 3]).is_finite());
+        let small = Image::filled(18, 18, 3, 1.0);
+        assert_eq!(NoiseLevel::fit(&small, &small, 0.5), None);
+    }
+}
