@@ -162,3 +162,38 @@ fn a_pattern_along_an_edge_that_is_no_mix_of_its_sides_passes_unchanged() {
         }
     }
 }
+
+/// The `coverage` stage (keys `table`, no features) on the rim of few samples, alone or as a
+/// `--temporal` frame whose variance was measured from the shot.
+fn staged(table: &str, from_stack: bool) -> Image {
+    use crate::buffers::Buffers;
+    use crate::filters::stage::{Context, Stage, StageIo};
+    use crate::render_set::RenderSet;
+    let color = rim(5, false);
+    let mut set = RenderSet::new(color.clone());
+    set.noise.variance = Some(Image::filled(24, 24, 3, 1e-4));
+    set.noise.from_stack = from_stack;
+    let mut buffers = Buffers::from(set);
+    buffers.insert("out", color).unwrap();
+    buffers.insert_same("noise", "variance").unwrap();
+    let io = StageIo {
+        input: "out".into(),
+        output: "out".into(),
+    };
+    let stage =
+        super::super::CoverageStage::from_table("coverage", io, toml::from_str(table).unwrap())
+            .unwrap();
+    stage
+        .execute(&mut buffers, &mut Context::new(0, false))
+        .unwrap();
+    buffers.get("out").unwrap().clone()
+}
+
+#[test]
+fn a_temporal_frame_skips_the_colour_step_unless_asked() {
+    let single = staged("", false);
+    assert_ne!(single, rim(5, false), "the case must show the colour step");
+    // A `--temporal` frame: its merged colour holds the shot's samples.
+    assert_eq!(staged("", true), rim(5, false));
+    assert_eq!(staged("stack_colour = true", true), single);
+}

@@ -26,6 +26,7 @@
 //! across = true        # spread across edges as the renderer's filter does (estimated)
 //! stack_across = false # and on a `--temporal` frame that moved (its merge already spreads edges)
 //! colour = true        # the along-edge step on edges only the colour shows
+//! stack_colour = false # and on a `--temporal` frame (its colour holds the shot's samples)
 //! ```
 
 mod across;
@@ -66,6 +67,10 @@ pub struct CoverageParams {
     /// do not (a light's rim on a ceiling of its albedo, a hard shadow), gated by the larger of the
     /// noise and the colour's scatter along the edge. Needs no features.
     pub colour: bool,
+    /// The colour-edge step on a `--temporal` frame too. Off by default: the merged colour holds
+    /// the shot's samples, so its rims scatter by far less than one frame's, and what the step
+    /// still finds there is the edges' own detail (it added flicker and error on both Blender shots).
+    pub stack_colour: bool,
 }
 
 impl Default for CoverageParams {
@@ -77,6 +82,7 @@ impl Default for CoverageParams {
             across: true,
             stack_across: false,
             colour: true,
+            stack_colour: false,
         }
     }
 }
@@ -182,7 +188,7 @@ impl Stage for CoverageStage {
             }
         };
         ctx.meter.check()?;
-        let out = if p.colour {
+        let out = if p.colour && (p.stack_colour || !buffers.variance_from_stack()) {
             along_colour_edges(&out, variance, (p.reach, p.tolerance), &ctx.meter)
         } else {
             out

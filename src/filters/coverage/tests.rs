@@ -328,10 +328,14 @@ fn staged(table: &str, resampled: bool) -> Image {
 
 #[test]
 fn a_resampled_temporal_frame_skips_the_across_spread_unless_asked() {
-    let renderer = staged("", false);
-    let along_only = staged("across = false", false);
+    // The colour-edge step off throughout: a `--temporal` frame skips it too (colour_tests).
+    let renderer = staged("colour = false", false);
+    let along_only = staged("colour = false\nacross = false", false);
     assert_ne!(renderer, along_only, "the case must show the across spread");
     // A `--temporal` frame whose neighbours moved: its edges already carry the resampling's spread.
-    assert_eq!(staged("", true), along_only);
-    assert_eq!(staged("stack_across = true", true), renderer);
+    assert_eq!(staged("colour = false", true), along_only);
+    assert_eq!(
+        staged("colour = false\nstack_across = true", true),
+        renderer
+    );
 }
