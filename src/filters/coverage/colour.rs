@@ -8,7 +8,7 @@
 //! sides) and stripes (another edge within three pixels) pass unchanged.
 
 use super::along::{along_edges, Gate};
-use super::orient::{normals, Guide};
+use super::orient::{colour_planes, normals, Guide};
 use crate::image::Image;
 use crate::meter::Meter;
 
@@ -16,22 +16,16 @@ use crate::meter::Meter;
 /// non-negative number read as 0.
 pub fn colour_guide(color: &Image) -> Guide {
     let (w, h) = color.dims();
-    let planes = (0..3)
-        .map(|k| {
-            color
-                .data()
-                .iter()
-                .skip(k)
-                .step_by(3)
-                .map(|&v| {
-                    if v.is_finite() && v > 0.0 {
-                        v / (1.0 + v)
-                    } else {
-                        0.0
-                    }
-                })
-                .collect()
-        })
+    let tone = |v: f32| {
+        if v.is_finite() && v > 0.0 {
+            v / (1.0 + v)
+        } else {
+            0.0
+        }
+    };
+    let planes = colour_planes(color)
+        .into_iter()
+        .map(|p| p.into_iter().map(tone).collect())
         .collect();
     Guide {
         w,

@@ -148,7 +148,8 @@ impl Stage for CoverageStage {
             ));
         }
         let p = &self.params;
-        let out = match Guide::new(buffers.features(), color.dims()) {
+        // The feature steps' result; none without features (the colour step, if on, reads the input).
+        let edged = match Guide::new(buffers.features(), color.dims()) {
             Some(guide) => {
                 let dirs = normals(&guide);
                 let out = along_edges(
@@ -160,7 +161,7 @@ impl Stage for CoverageStage {
                     &ctx.meter,
                 );
                 ctx.meter.check()?;
-                if p.across && (p.stack_across || !buffers.resampled()) {
+                Some(if p.across && (p.stack_across || !buffers.resampled()) {
                     let share = spread(&guide, &dirs).share();
                     across_edges(
                         &out,
@@ -172,7 +173,7 @@ impl Stage for CoverageStage {
                     )
                 } else {
                     out
-                }
+                })
             }
             None => {
                 let rest = if p.colour {
@@ -184,14 +185,15 @@ impl Stage for CoverageStage {
                     "{}: no albedo or normal to find edges by; {rest}",
                     self.id
                 ));
-                color.par_clone()
+                None
             }
         };
         ctx.meter.check()?;
         let out = if p.colour && (p.stack_colour || !buffers.variance_from_stack()) {
-            along_colour_edges(&out, variance, (p.reach, p.tolerance), &ctx.meter)
+            let input = edged.as_ref().unwrap_or(color);
+            along_colour_edges(input, variance, (p.reach, p.tolerance), &ctx.meter)
         } else {
-            out
+            edged.unwrap_or_else(|| color.par_clone())
         };
         ctx.meter.check()?;
         buffers.insert(self.io.output.clone(), out)?;
