@@ -1,6 +1,7 @@
 //! The colour-edge step on edges no feature shows: a light's rim of few samples, a clean edge, a
 //! thin line, stripes, and the hard images.
 
+use super::super::tests::{run_stage, stripe_contrast};
 use super::along_colour_edges;
 use crate::image::Image;
 use crate::meter::Meter;
@@ -89,16 +90,10 @@ fn a_thin_line_and_stripes_pass_unchanged() {
         |x: usize, y: usize| ((x / 2) % 2 == 1) ^ (x.is_multiple_of(2) && flips[y * 24 + x]);
     let color = Image::from_fn(24, 24, 3, |x, y, _| if stripe(x, y) { 0.9 } else { 0.1 });
     let out = run(&color, 1e-4);
-    let contrast = |img: &Image| {
-        let (mut s, mut n) = ([0.0f64; 2], [0usize; 2]);
-        for i in 0..24 * 24 {
-            let k = stripe(i % 24, i / 24) as usize;
-            s[k] += img.pixel(i)[0] as f64;
-            n[k] += 1;
-        }
-        s[1] / n[1] as f64 - s[0] / n[0] as f64
-    };
-    let (before, after) = (contrast(&color), contrast(&out));
+    let (before, after) = (
+        stripe_contrast(&color, stripe),
+        stripe_contrast(&out, stripe),
+    );
     assert!(after > 0.97 * before, "stripe contrast {before} → {after}");
 }
 
@@ -166,27 +161,10 @@ fn a_pattern_along_an_edge_that_is_no_mix_of_its_sides_passes_unchanged() {
 /// The `coverage` stage (keys `table`, no features) on the rim of few samples, alone or as a
 /// `--temporal` frame whose variance was measured from the shot.
 fn staged(table: &str, from_stack: bool) -> Image {
-    use crate::buffers::Buffers;
-    use crate::filters::stage::{Context, Stage, StageIo};
-    use crate::render_set::RenderSet;
-    let color = rim(5, false);
-    let mut set = RenderSet::new(color.clone());
+    let mut set = crate::render_set::RenderSet::new(rim(5, false));
     set.noise.variance = Some(Image::filled(24, 24, 3, 1e-4));
     set.noise.from_stack = from_stack;
-    let mut buffers = Buffers::from(set);
-    buffers.insert("out", color).unwrap();
-    buffers.insert_same("noise", "variance").unwrap();
-    let io = StageIo {
-        input: "out".into(),
-        output: "out".into(),
-    };
-    let stage =
-        super::super::CoverageStage::from_table("coverage", io, toml::from_str(table).unwrap())
-            .unwrap();
-    stage
-        .execute(&mut buffers, &mut Context::new(0, false))
-        .unwrap();
-    buffers.get("out").unwrap().clone()
+    run_stage(table, set)
 }
 
 #[test]

@@ -105,18 +105,23 @@ fn stripes_pass_unchanged() {
     )
     .unwrap();
     let out = run(&color, &set, 0.2);
-    // What blurring stripes costs: the contrast between their bright and dark pixels.
-    let contrast = |img: &Image| {
-        let (mut s, mut n) = ([0.0f64; 2], [0usize; 2]);
-        for i in 0..24 * 24 {
-            let k = stripe(i % 24, i / 24) as usize;
-            s[k] += img.pixel(i)[0] as f64;
-            n[k] += 1;
-        }
-        s[1] / n[1] as f64 - s[0] / n[0] as f64
-    };
-    let (before, after) = (contrast(&color), contrast(&out));
+    let (before, after) = (
+        stripe_contrast(&color, stripe),
+        stripe_contrast(&out, stripe),
+    );
     assert!(after > 0.97 * before, "stripe contrast {before} → {after}");
+}
+
+/// What blurring stripes costs: the contrast between a 24×24 image's bright pixels (`stripe`
+/// true) and its dark ones.
+pub(super) fn stripe_contrast(img: &Image, stripe: impl Fn(usize, usize) -> bool) -> f64 {
+    let (mut s, mut n) = ([0.0f64; 2], [0usize; 2]);
+    for i in 0..24 * 24 {
+        let k = stripe(i % 24, i / 24) as usize;
+        s[k] += img.pixel(i)[0] as f64;
+        n[k] += 1;
+    }
+    s[1] / n[1] as f64 - s[0] / n[0] as f64
 }
 
 #[test]
@@ -298,19 +303,12 @@ fn across_gives_the_same_bits_on_one_and_two_threads() {
     assert_eq!(on(1), on(2));
 }
 
-/// The `coverage` stage (keys `table`) on one-sample edges of a wide filter, alone or as a
-/// `--temporal` frame merged from neighbours resampled between pixels.
-fn staged(table: &str, resampled: bool) -> Image {
+/// The `coverage` stage (keys `table`) on `set`'s colour as the filtered image, its variance as
+/// the noise.
+pub(super) fn run_stage(table: &str, set: crate::render_set::RenderSet) -> Image {
     use crate::buffers::Buffers;
     use crate::filters::stage::{Context, Stage, StageIo};
-    use crate::render_set::RenderSet;
-    let (color, features) = edges(1, 5, wide);
-    let (w, h) = color.dims();
-    let mut set = RenderSet::new(color.clone());
-    set.features = features;
-    set.noise.variance = Some(Image::filled(w, h, 3, 0.2));
-    set.noise.from_stack = resampled;
-    set.noise.resampled = resampled;
+    let color = set.color.clone();
     let mut buffers = Buffers::from(set);
     buffers.insert("out", color).unwrap();
     buffers.insert_same("noise", "variance").unwrap();
@@ -324,6 +322,19 @@ fn staged(table: &str, resampled: bool) -> Image {
         .execute(&mut buffers, &mut Context::new(0, false))
         .unwrap();
     buffers.get("out").unwrap().clone()
+}
+
+/// The `coverage` stage (keys `table`) on one-sample edges of a wide filter, alone or as a
+/// `--temporal` frame merged from neighbours resampled between pixels.
+fn staged(table: &str, resampled: bool) -> Image {
+    let (color, features) = edges(1, 5, wide);
+    let (w, h) = color.dims();
+    let mut set = crate::render_set::RenderSet::new(color);
+    set.features = features;
+    set.noise.variance = Some(Image::filled(w, h, 3, 0.2));
+    set.noise.from_stack = resampled;
+    set.noise.resampled = resampled;
+    run_stage(table, set)
 }
 
 #[test]
