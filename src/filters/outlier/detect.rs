@@ -171,14 +171,8 @@ fn pixel_limits(
                     .expect("not empty");
                 scratch.swap_remove(k);
             }
-            let m = scratch.len() as f64;
-            let mean = scratch.iter().map(|&v| v as f64).sum::<f64>() / m;
-            let var = scratch
-                .iter()
-                .map(|&v| (v as f64 - mean).powi(2))
-                .sum::<f64>()
-                / m;
-            let t = mean + p.threshold as f64 * var.sqrt().max(p.std_floor as f64);
+            let (mean, sd) = mean_sd(scratch.iter().map(|&v| v as f64));
+            let t = mean + p.threshold as f64 * sd.max(p.std_floor as f64);
             (untone(t).unwrap_or(f32::INFINITY), low)
         }
     }
@@ -191,15 +185,19 @@ fn spread_without_darkest(v: &[f32]) -> (f64, f64) {
         .then(|| v.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)))
         .flatten()
         .map(|(k, _)| k);
-    let kept = || {
+    mean_sd(
         v.iter()
             .enumerate()
-            .filter(move |&(k, _)| Some(k) != skip)
-            .map(|(_, &x)| x as f64)
-    };
-    let m = kept().count() as f64;
-    let mean = kept().sum::<f64>() / m;
-    let var = kept().map(|x| (x - mean).powi(2)).sum::<f64>() / m;
+            .filter(|&(k, _)| Some(k) != skip)
+            .map(|(_, &x)| x as f64),
+    )
+}
+
+/// Mean and (population) standard deviation of `values`, in their order; not empty.
+fn mean_sd(values: impl Iterator<Item = f64> + Clone) -> (f64, f64) {
+    let m = values.clone().count() as f64;
+    let mean = values.clone().sum::<f64>() / m;
+    let var = values.map(|x| (x - mean).powi(2)).sum::<f64>() / m;
     (mean, var.sqrt())
 }
 

@@ -42,14 +42,7 @@ pub fn repair(
                     cand.extend(
                         window(x, y, r, w, h)
                             .filter(|&j| !detection.mask[j])
-                            .map(|j| {
-                                let (da, dn) = guides.distances(i, j);
-                                let za = da / params.albedo_tol.max(1e-6);
-                                let zn = dn / params.normal_tol.max(1e-6);
-                                // Floor so a pixel on its own surface still gets its neighbours' median.
-                                let wt = (-0.5 * (za * za + zn * zn)).exp().max(1e-6);
-                                (lum[j], wt, j)
-                            }),
+                            .map(|j| (lum[j], likeness(guides, params, i, j), j)),
                     );
                     if !cand.is_empty() {
                         cand.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.2.cmp(&b.2)));
@@ -97,6 +90,15 @@ pub fn repair(
     out
 }
 
+/// How much neighbour j shares pixel i's surface: exp(−½(Δalbedo/albedo_tol)² −
+/// ½(Δnormal/normal_tol)²), floored so a pixel on its own surface still reads its neighbours.
+fn likeness(guides: &Guides, params: &DetectParams, i: usize, j: usize) -> f32 {
+    let (da, dn) = guides.distances(i, j);
+    let za = da / params.albedo_tol.max(1e-6);
+    let zn = dn / params.normal_tol.max(1e-6);
+    (-0.5 * (za * za + zn * zn)).exp().max(1e-6)
+}
+
 /// Raises a dark dot `px` (pixel i at (x, y), luminance `l`) to luminance `low` by adding a share
 /// of its unflagged neighbours' colour, each weighted by feature similarity as the median's: a
 /// black pixel has no hue of its own to scale, and its surface's is the one it lacks.
@@ -116,10 +118,7 @@ fn raise(
 ) {
     let (mut sum, mut total) = ([0.0f64; 3], 0.0f64);
     for j in window(x, y, params.radius.max(1), w, h).filter(|&j| !detection.mask[j]) {
-        let (da, dn) = guides.distances(i, j);
-        let za = da / params.albedo_tol.max(1e-6);
-        let zn = dn / params.normal_tol.max(1e-6);
-        let wt = (-0.5 * (za * za + zn * zn)).exp().max(1e-6) as f64;
+        let wt = likeness(guides, params, i, j) as f64;
         if !wt.is_finite() || !lum[j].is_finite() {
             continue;
         }
