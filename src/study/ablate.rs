@@ -91,41 +91,45 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
     }
     // A `reliability` stage's surface mean against its median centre; a `coverage` stage's
     // across-edge spread (the renderer's estimated pixel-filter width) and its step along the
-    // edges only the colour shows, each against none.
+    // edges only the colour shows, each against none; an `outlier` stage's dark dots and a `blend`
+    // stage's noise-level cap, where a pipeline turns them on, against off.
+    let unset_or = |want: toml::Value| move |v: Option<&toml::Value>| v.is_none_or(|v| *v == want);
     out.extend(switched_variants(
         spec,
         ("reliability", "centre"),
-        ("mean".into(), "median".into()),
+        (unset_or("mean".into()), "median".into()),
         "with median centres",
     )?);
     out.extend(switched_variants(
         spec,
         ("coverage", "across"),
-        (true.into(), false.into()),
+        (unset_or(true.into()), false.into()),
         "without the across-edge spread",
     )?);
     out.extend(switched_variants(
         spec,
         ("coverage", "colour"),
-        (true.into(), false.into()),
+        (unset_or(true.into()), false.into()),
         "without the colour's own edges",
     )?);
-    out.extend(dark_dot_variants(spec)?);
-    // A `blend` stage's noise-level cap (off unless set): the row with it off.
-    for (i, stage) in spec.stages.iter().enumerate() {
-        let on = stage
-            .params
-            .get("noise_level")
-            .and_then(toml::Value::as_float);
-        if stage.kind == "blend" && on.is_some_and(|q| q > 0.0) {
-            let mut v = spec.clone();
-            v.stages[i].set(&["noise_level"], toml::Value::Float(0.0))?;
-            out.push(Variant {
-                name: format!("{} without the noise-level cap", stage.id),
-                spec: v,
-            });
-        }
-    }
+    out.extend(switched_variants(
+        spec,
+        ("outlier", "two_sided"),
+        (
+            |v: Option<&toml::Value>| v == Some(&true.into()),
+            false.into(),
+        ),
+        "one-sided (dark dots kept)",
+    )?);
+    out.extend(switched_variants(
+        spec,
+        ("blend", "noise_level"),
+        (
+            |v: Option<&toml::Value>| v.and_then(toml::Value::as_float).is_some_and(|q| q > 0.0),
+            toml::Value::Float(0.0),
+        ),
+        "without the noise-level cap",
+    )?);
     out.extend(noise_variants(spec)?);
     let paths = feature_paths(spec);
     if !paths.is_empty() {
@@ -147,41 +151,23 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
     Ok(out)
 }
 
-/// For every stage of `kind` whose `key` is at its `default` (or unset), the row with `other`
-/// instead, named "<stage> <label>": what that default buys.
+/// For every stage of `kind` whose `key` (its value, or none when unset) passes `on`, the row with
+/// `other` instead, named "<stage> <label>": what that setting buys.
 fn switched_variants(
     spec: &PipelineSpec,
     (kind, key): (&str, &str),
-    (default, other): (toml::Value, toml::Value),
+    (on, other): (impl Fn(Option<&toml::Value>) -> bool, toml::Value),
     label: &str,
 ) -> Result<Vec<Variant>> {
     let mut out = Vec::new();
     for (i, stage) in spec.stages.iter().enumerate() {
-        if stage.kind != kind || stage.params.get(key).is_some_and(|v| *v != default) {
+        if stage.kind != kind || !on(stage.params.get(key)) {
             continue;
         }
         let mut v = spec.clone();
         v.stages[i].set(&[key], other.clone())?;
         out.push(Variant {
             name: format!("{} {label}", stage.id),
-            spec: v,
-        });
-    }
-    Ok(out)
-}
-
-/// For every `outlier` stage that also flags dark dots, the row without them: what the two-sided
-/// rule buys.
-fn dark_dot_variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
-    let mut out = Vec::new();
-    for (i, stage) in spec.stages.iter().enumerate() {
-        if stage.kind != "outlier" || stage.params.get("two_sided") != Some(&true.into()) {
-            continue;
-        }
-        let mut v = spec.clone();
-        v.stages[i].set(&["two_sided"], false.into())?;
-        out.push(Variant {
-            name: format!("{} one-sided (dark dots kept)", stage.id),
             spec: v,
         });
     }

@@ -171,25 +171,39 @@ mod tests {
     use crate::image::Image;
     use crate::render_set::RenderSet;
 
-    /// The blend of `full` (tolerance 2) over a flat colour of noise variance 0.01 whose filtered
-    /// value moved every pixel by 1.5 noise σ, with the variance from a renderer or a stack.
-    fn blended(from_stack: bool) -> Image {
-        let (w, h) = (9, 9);
-        let mut set = RenderSet::new(Image::filled(w, h, 3, 1.0));
-        set.noise.variance = Some(Image::filled(w, h, 3, 0.01));
+    /// The blend stage (keys `table`) of `filtered` against `color` with noise `variance`, the
+    /// variance from a renderer or a stack.
+    fn staged(
+        table: &str,
+        (color, filtered, variance): (Image, Image, Image),
+        from_stack: bool,
+    ) -> Image {
+        let mut set = RenderSet::new(color);
+        set.noise.variance = Some(variance);
         set.noise.from_stack = from_stack;
         let mut buffers = Buffers::from(set);
-        buffers.insert("out", Image::filled(w, h, 3, 1.15)).unwrap();
+        buffers.insert("out", filtered).unwrap();
         buffers.insert_same("noise", "variance").unwrap();
-        let table: toml::Table = toml::from_str("tolerance = 2.0").unwrap();
         let io = StageIo {
             input: "out".into(),
             output: "out".into(),
         };
-        let stage = BlendStage::from_table("blend", io, table).unwrap();
+        let stage = BlendStage::from_table("blend", io, toml::from_str(table).unwrap()).unwrap();
         let mut ctx = Context::new(0, false);
         stage.execute(&mut buffers, &mut ctx).unwrap();
         buffers.get("out").unwrap().clone()
+    }
+
+    /// The blend of `full` (tolerance 2) over a flat colour of noise variance 0.01 whose filtered
+    /// value moved every pixel by 1.5 noise σ, with the variance from a renderer or a stack.
+    fn blended(from_stack: bool) -> Image {
+        let (w, h) = (9, 9);
+        let case = (
+            Image::filled(w, h, 3, 1.0),
+            Image::filled(w, h, 3, 1.15),
+            Image::filled(w, h, 3, 0.01),
+        );
+        staged("tolerance = 2.0", case, from_stack)
     }
 
     #[test]
@@ -209,25 +223,8 @@ mod tests {
     /// The blend stage of `full` (noise level 0.75, none for a stack) over the noise-level
     /// module's blurred band, with its variance from a renderer or a stack, `noise_level` `q`.
     fn band_blended(from_stack: bool, q: f64) -> Image {
-        let (color, filtered, variance) = super::cap_tests::blurred_band();
-        let mut set = RenderSet::new(color);
-        set.noise.variance = Some(variance);
-        set.noise.from_stack = from_stack;
-        let mut buffers = Buffers::from(set);
-        buffers.insert("out", filtered).unwrap();
-        buffers.insert_same("noise", "variance").unwrap();
-        let table: toml::Table = toml::from_str(&format!(
-            "tolerance = 2.0\nnoise_level = {q}\nstack_noise_level = 0.0"
-        ))
-        .unwrap();
-        let io = StageIo {
-            input: "out".into(),
-            output: "out".into(),
-        };
-        let stage = BlendStage::from_table("blend", io, table).unwrap();
-        let mut ctx = Context::new(0, false);
-        stage.execute(&mut buffers, &mut ctx).unwrap();
-        buffers.get("out").unwrap().clone()
+        let table = format!("tolerance = 2.0\nnoise_level = {q}\nstack_noise_level = 0.0");
+        staged(&table, super::cap_tests::blurred_band(), from_stack)
     }
 
     #[test]
