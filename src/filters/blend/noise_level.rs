@@ -13,7 +13,7 @@
 
 use rayon::prelude::*;
 
-use crate::filters::noise::measured::clean;
+use crate::filters::noise::measured::pixel_variance;
 use crate::image::Image;
 
 /// How many equal-count brightness bins the noise-level function is read in.
@@ -51,12 +51,6 @@ fn ln_luminance(p: &[f32]) -> f64 {
     } else {
         DARK.ln()
     }
-}
-
-/// A pixel's variance as the blend reads it: the mean of its channels', not finite or negative
-/// counting as 0.
-pub(super) fn pixel_variance(v: &[f32]) -> f64 {
-    v.iter().map(|&x| clean(x)).sum::<f64>() / 3.0
 }
 
 /// The `q` quantile of `values` (linear between order statistics, as numpy's default), which it

@@ -4,7 +4,8 @@
 use rayon::prelude::*;
 
 use super::error_estimate::{blend_error_row, trimmed_chi2, BLEND_RADIUS};
-use super::noise_level::{pixel_variance, tested_variance, NoiseLevel};
+use super::noise_level::{tested_variance, NoiseLevel};
+use crate::filters::noise::measured::pixel_variance;
 use crate::filters::noise::surface::{Mates, Surface};
 use crate::image::{par_vec, Image};
 use crate::kernels::padded::{Margin, Padded};

@@ -12,7 +12,7 @@
 use rayon::prelude::*;
 
 use super::orient::{bilinear, colour_planes, gated_move, mix, Guide};
-use crate::filters::noise::measured::clean;
+use crate::filters::noise::measured::pixel_variance;
 use crate::image::{par_vec, Image};
 use crate::meter::Meter;
 
@@ -222,7 +222,7 @@ pub fn across_edges(
     let noise: Vec<f64> = variance
         .data()
         .par_chunks_exact(3)
-        .map(|v| v.iter().map(|&s| clean(s)).sum::<f64>() / 3.0)
+        .map(pixel_variance)
         .collect();
     let edges = edge_pixels(guide);
     let c = color.data();

@@ -15,7 +15,7 @@
 use rayon::prelude::*;
 
 use super::orient::{bilinear, colour_planes, gated_move, mix, Guide};
-use crate::filters::noise::measured::clean;
+use crate::filters::noise::measured::pixel_variance;
 use crate::image::{par_vec, Image};
 use crate::meter::Meter;
 
@@ -67,7 +67,7 @@ pub fn along_edges(
                 let i = y * w + x;
                 let px = &mut row[3 * x..3 * x + 3];
                 px.copy_from_slice(&c[3 * i..3 * i + 3]);
-                let var = v[3 * i..3 * i + 3].iter().map(|&s| clean(s)).sum::<f64>() / 3.0;
+                let var = pixel_variance(&v[3 * i..3 * i + 3]);
                 let pos = (x as f32, y as f32);
                 let share = jump_share(guide, pos, normals[i], reach, gate, scratch);
                 if share <= 0.0 || var <= 0.0 {

@@ -7,7 +7,7 @@
 //! noise weigh fully, a reflected edge the noise cannot explain weighs nothing, so the guide keeps
 //! the edge and loses most of the noise.
 
-use crate::filters::noise::measured::clean;
+use crate::filters::noise::measured::pixel_variance;
 use crate::filters::prefilter::{filter_metered, Kind, Params};
 use crate::image::Image;
 use crate::meter::Meter;
@@ -26,7 +26,7 @@ pub fn color_guide(color: &Image, variance: &Image, k: f64, meter: &Meter) -> Op
     let per_pixel: Vec<f64> = variance
         .data()
         .chunks_exact(3)
-        .map(|v| v.iter().map(|&x| clean(x)).sum::<f64>() / 3.0)
+        .map(pixel_variance)
         .collect();
     let mut positive: Vec<f64> = per_pixel.iter().copied().filter(|&v| v > 0.0).collect();
     if positive.is_empty() {

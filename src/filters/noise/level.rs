@@ -3,7 +3,7 @@
 
 use rayon::prelude::*;
 
-use super::measured::clean;
+use super::measured::pixel_variance;
 use crate::image::Image;
 
 /// Most a pixel's colour scale departs from 1 (either way).
@@ -75,7 +75,7 @@ fn channel_mean(c: &[f32]) -> f64 {
 /// The noise standard deviation of a pixel of variance `v` (its channels' mean) through the
 /// Reinhard curve's derivative e / (1 + e·m)² at mean colour `m`.
 fn tone_sd(v: &[f32], m: f64, e: f64) -> f64 {
-    let var = v.iter().map(|&x| clean(x)).sum::<f64>() / 3.0;
+    let var = pixel_variance(v);
     var.sqrt() * e / (1.0 + e * m).powi(2)
 }
 

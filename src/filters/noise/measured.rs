@@ -64,3 +64,8 @@ pub(crate) fn clean(v: f32) -> f64 {
         0.0
     }
 }
+
+/// A pixel's variance as one number: the mean of its RGB channels' (each [`clean`]ed).
+pub(crate) fn pixel_variance(v: &[f32]) -> f64 {
+    v.iter().map(|&x| clean(x)).sum::<f64>() / 3.0
+}
