@@ -180,11 +180,6 @@ pub fn spread_light(
         0.5 / (params.albedo_tol * params.albedo_tol),
         0.5 / (params.normal_tol * params.normal_tol),
     );
-    // −ln of the surface weight exp(−½(Δalbedo/tol)² − ½(Δnormal/tol)²).
-    let unlike = |i: usize, j: usize| -> f32 {
-        let (da2, dn) = guides.squared_distances(i, j);
-        ka * da2 + kn * dn * dn
-    };
     // Each source shares its light as a Gaussian bump (σ half the radius: a smooth rise, no
     // square), at the density it would have on a flat surface filling the window, not over the
     // pixels of its own surface alone: a firefly on a sliver of surface would otherwise pour it all
@@ -227,59 +222,108 @@ pub fn spread_light(
         .data_mut()
         .par_chunks_mut(3 * w.max(1))
         .enumerate()
-        .map_init(Vec::new, |gained, (y, row)| {
-            if meter.cancelled() {
-                return 0.0;
-            }
-            meter.rows(1);
-            gained.clear();
-            gained.resize(w, [0.0f64; 3]);
-            let rows = y.saturating_sub(r)..(y + r + 1).min(h);
-            for (sy, row_sources) in rows.clone().zip(&sources[rows]) {
-                for s in row_sources {
-                    let i = sy * w + s.x;
-                    let x0 = s.x.saturating_sub(r);
-                    let x1 = (s.x + r + 1).min(w);
-                    for (x, gain) in (x0..x1).zip(&mut gained[x0..x1]) {
+        .map_init(
+            || (Vec::new(), Vec::new()),
+            |(gained, unlike), (y, row)| {
+                if meter.cancelled() {
+                    return 0.0;
+                }
+                meter.rows(1);
+                gained.clear();
+                gained.resize(w, [0.0f64; 3]);
+                unlike.resize(side, 0.0f32);
+                let rows = y.saturating_sub(r)..(y + r + 1).min(h);
+                for (sy, row_sources) in rows.clone().zip(&sources[rows]) {
+                    for s in row_sources {
+                        let x0 = s.x.saturating_sub(r);
+                        let x1 = (s.x + r + 1).min(w);
+                        let unlike = &mut unlike[..x1 - x0];
+                        row_unlike(guides, (ka, kn), sy * w + s.x, y * w + x0, unlike);
+                        // The window's row this receiving row is, from x0 on.
+                        let at = (y + r - sy) * side + (x0 + r - s.x);
+                        let (far, bump) =
+                            (&far[at..at + unlike.len()], &bump[at..at + unlike.len()]);
                         // The spike itself takes nothing back.
-                        if sy == y && x == s.x {
-                            continue;
-                        }
-                        let at = (y + r - sy) * side + (x + r - s.x);
-                        let u = unlike(i, y * w + x);
-                        // Below exp(−18) a share is nothing worth its exponential; one surface
-                        // (u = 0) needs none; a feature that is not a number shares nothing.
-                        let e = far[at] + u;
-                        if e.is_nan() || e > 18.0 {
-                            continue;
-                        }
-                        let share = if u > 0.0 {
-                            bump[at] * (-u).exp() as f64
-                        } else {
-                            bump[at]
-                        };
-                        for (g, l) in gain.iter_mut().zip(s.light) {
-                            *g += share * l;
+                        let spike = if sy == y { s.x - x0 } else { usize::MAX };
+                        let cells = gained[x0..x1]
+                            .iter_mut()
+                            .zip(unlike.iter())
+                            .zip(far.iter().zip(bump));
+                        for (t, ((gain, &u), (&far, &bump))) in cells.enumerate() {
+                            // Below exp(−18) a share is nothing worth its exponential; one surface
+                            // (u = 0) needs none; a feature that is not a number shares nothing.
+                            let e = far + u;
+                            if t == spike || e.is_nan() || e > 18.0 {
+                                continue;
+                            }
+                            let share = if u > 0.0 {
+                                bump * (-u).exp() as f64
+                            } else {
+                                bump
+                            };
+                            for (g, l) in gain.iter_mut().zip(s.light) {
+                                *g += share * l;
+                            }
                         }
                     }
                 }
-            }
-            let mut returned = 0.0;
-            for (x, (px, gain)) in row.chunks_exact_mut(3).zip(gained.iter()).enumerate() {
-                let j = y * w + x;
-                for k in 0..3 {
-                    let sd = clean(v[3 * j + k]).sqrt();
-                    let add = gain[k].min(params.cap * sd);
-                    if add > 0.0 {
-                        px[k] = (px[k] as f64 + add).min(f32::MAX as f64) as f32;
-                        returned += add;
+                let mut returned = 0.0;
+                for (x, (px, gain)) in row.chunks_exact_mut(3).zip(gained.iter()).enumerate() {
+                    let j = y * w + x;
+                    for k in 0..3 {
+                        let sd = clean(v[3 * j + k]).sqrt();
+                        let add = gain[k].min(params.cap * sd);
+                        if add > 0.0 {
+                            px[k] = (px[k] as f64 + add).min(f32::MAX as f64) as f32;
+                            returned += add;
+                        }
                     }
                 }
-            }
-            returned
-        })
+                returned
+            },
+        )
         .sum();
     Given { removed, returned }
+}
+
+/// −ln of the surface weight exp(−½(Δalbedo/tol)² − ½(Δnormal/tol)²) of source pixel `i` to each
+/// of the pixels from `j` on along its row, into `out`: [`Guides::squared_distances`]'
+/// operations with the source's features read once, not at every pair.
+fn row_unlike(guides: &Guides, (ka, kn): (f32, f32), i: usize, j: usize, out: &mut [f32]) {
+    let n = out.len();
+    // The albedo's squared distance first (0 without one), then u = ka·da² + kn·dn² as for a pair.
+    out.fill(0.0);
+    if let Some(a) = guides.albedo {
+        let c = a.channels();
+        let p = &a.data()[i * c..i * c + 3];
+        for (o, q) in out
+            .iter_mut()
+            .zip(a.data()[j * c..(j + n) * c].chunks_exact(c))
+        {
+            *o = (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2);
+        }
+    }
+    let Some(m) = guides.normal else {
+        for o in out.iter_mut() {
+            *o = ka * *o + kn * 0.0 * 0.0;
+        }
+        return;
+    };
+    let c = m.channels();
+    let p = &m.data()[i * c..i * c + 3];
+    let known = p.iter().any(|&v| v != 0.0);
+    for (o, q) in out
+        .iter_mut()
+        .zip(m.data()[j * c..(j + n) * c].chunks_exact(c))
+    {
+        let dot = p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
+        let dn = if known && q[..3].iter().any(|&v| v != 0.0) {
+            ((1.0 - dot) * 0.5).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        *o = ka * *o + kn * dn * dn;
+    }
 }
 
 /// A removed light's value as spread: finite and positive, else nothing.
