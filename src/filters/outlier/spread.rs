@@ -290,18 +290,15 @@ pub fn spread_light(
 /// of the pixels from `j` on along its row, into `out`: [`Guides::squared_distances`]'
 /// operations with the source's features read once, not at every pair.
 fn row_unlike(guides: &Guides, (ka, kn): (f32, f32), i: usize, j: usize, out: &mut [f32]) {
-    let n = out.len();
     // The albedo's squared distance first (0 without one), then u = ka·da² + kn·dn² as for a pair.
-    out.fill(0.0);
     if let Some(a) = guides.albedo {
-        let c = a.channels();
-        let p = &a.data()[i * c..i * c + 3];
-        for (o, q) in out
-            .iter_mut()
-            .zip(a.data()[j * c..(j + n) * c].chunks_exact(c))
-        {
+        let p = first3(a.pixel(i));
+        let squared = |o: &mut f32, q: [f32; 3]| {
             *o = (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2);
-        }
+        };
+        for_row(a, j, out, squared);
+    } else {
+        out.fill(0.0);
     }
     let Some(m) = guides.normal else {
         for o in out.iter_mut() {
@@ -309,20 +306,40 @@ fn row_unlike(guides: &Guides, (ka, kn): (f32, f32), i: usize, j: usize, out: &m
         }
         return;
     };
-    let c = m.channels();
-    let p = &m.data()[i * c..i * c + 3];
-    let known = p.iter().any(|&v| v != 0.0);
-    for (o, q) in out
-        .iter_mut()
-        .zip(m.data()[j * c..(j + n) * c].chunks_exact(c))
-    {
+    let p = first3(m.pixel(i));
+    let known = p[0] != 0.0 || p[1] != 0.0 || p[2] != 0.0;
+    let unlike = |o: &mut f32, q: [f32; 3]| {
         let dot = p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
-        let dn = if known && q[..3].iter().any(|&v| v != 0.0) {
+        let dn = if known && (q[0] != 0.0 || q[1] != 0.0 || q[2] != 0.0) {
             ((1.0 - dot) * 0.5).clamp(0.0, 1.0)
         } else {
             0.0
         };
         *o = ka * *o + kn * dn * dn;
+    };
+    for_row(m, j, out, unlike);
+}
+
+/// A pixel's first three channels.
+fn first3(px: &[f32]) -> [f32; 3] {
+    [px[0], px[1], px[2]]
+}
+
+/// `f` on each cell of `out` and the first three channels of its pixel of `img`, the pixels from
+/// `j` on: read as whole arrays when the image has three channels (the common case, which the
+/// loop then vectorises).
+#[inline(always)]
+fn for_row(img: &Image, j: usize, out: &mut [f32], f: impl Fn(&mut f32, [f32; 3])) {
+    let c = img.channels();
+    let data = &img.data()[j * c..(j + out.len()) * c];
+    if c == 3 {
+        for (o, q) in out.iter_mut().zip(data.as_chunks::<3>().0) {
+            f(o, *q);
+        }
+    } else {
+        for (o, q) in out.iter_mut().zip(data.chunks_exact(c)) {
+            f(o, first3(q));
+        }
     }
 }
 
@@ -448,6 +465,55 @@ mod tests {
         spread(&mut out, &light, &variance, &guides, 1e6);
         assert!(out.data().iter().all(|v| v.is_finite()));
         assert_eq!(out.pixel(15 * 31 + 16)[0], 0.2, "the NaN column took light");
+    }
+
+    #[test]
+    fn a_row_of_surface_distances_is_each_pairs() {
+        // Albedo and normals of three and of four channels, with unknown (zero) and NaN normals,
+        // each guide alone and both: every cell the pair's own distances give, to the bit.
+        let (w, h) = (23, 4);
+        for c in [3, 4] {
+            let albedo = Image::from_fn(w, h, c, |x, y, k| {
+                ((x * 7 + y * 3 + k * 5) % 11) as f32 / 10.0
+            });
+            let normal = Image::from_fn(w, h, c, |x, y, k| match (x % 5, x + y) {
+                (0, _) => 0.0,
+                (_, 9) => f32::NAN,
+                _ => ((x + 2 * y + k) % 7) as f32 / 7.0 - 0.4,
+            });
+            let guides = [
+                Guides {
+                    albedo: Some(&albedo),
+                    normal: Some(&normal),
+                },
+                Guides {
+                    albedo: Some(&albedo),
+                    normal: None,
+                },
+                Guides {
+                    albedo: None,
+                    normal: Some(&normal),
+                },
+                Guides::default(),
+            ];
+            let (ka, kn) = (50.0f32, 200.0f32);
+            for g in &guides {
+                for i in [0, w + 5, 2 * w + 7, 3 * w + 22] {
+                    for y in 0..h {
+                        let mut out = vec![-1.0f32; w];
+                        row_unlike(g, (ka, kn), i, y * w, &mut out);
+                        for (x, &u) in out.iter().enumerate() {
+                            let (da2, dn) = g.squared_distances(i, y * w + x);
+                            let want = ka * da2 + kn * dn * dn;
+                            assert!(
+                                u.to_bits() == want.to_bits() || (u.is_nan() && want.is_nan()),
+                                "c {c}, source {i}, ({x}, {y}): {u} against {want}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
     }
 
     #[test]
