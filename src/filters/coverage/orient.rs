@@ -155,8 +155,8 @@ fn sobel_row(um: &[f32], u0: &[f32], up: &[f32], e: &mut [[f32; 3]]) {
         [um[x], um[xm], um[xp], u0[xm], u0[xp], up[x], up[xm], up[xp]]
     };
     if w < 3 {
-        for x in 0..w {
-            add(&mut e[x], edge(x));
+        for (x, e) in e.iter_mut().enumerate() {
+            add(e, edge(x));
         }
         return;
     }
