@@ -3,6 +3,7 @@
 
 pub mod pass;
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::buffers::Buffers;
@@ -170,9 +171,11 @@ impl Stage for AtrousStage {
             None
         };
         if let Some(a) = albedo {
-            for (c, &a) in color.data_mut().iter_mut().zip(a.data()) {
-                *c /= a.max(0.0) + DEMODULATION_EPS;
-            }
+            color
+                .data_mut()
+                .par_iter_mut()
+                .zip(a.data())
+                .for_each(|(c, &a)| *c /= a.max(0.0) + DEMODULATION_EPS);
         }
         // Zero rows: checks every feature buffer's size and reports the missing ones, before any work.
         for k in 0..p.iterations {
@@ -193,9 +196,11 @@ impl Stage for AtrousStage {
         }
         ctx.meter.check()?;
         if let Some(a) = albedo {
-            for (c, &a) in color.data_mut().iter_mut().zip(a.data()) {
-                *c *= a.max(0.0) + DEMODULATION_EPS;
-            }
+            color
+                .data_mut()
+                .par_iter_mut()
+                .zip(a.data())
+                .for_each(|(c, &a)| *c *= a.max(0.0) + DEMODULATION_EPS);
         }
         buffers.insert(self.io.output.clone(), color)?;
         Ok(0)

@@ -8,7 +8,7 @@
 //! sides) and stripes (another edge within three pixels) pass unchanged.
 
 use super::along::{along_edges, Gate};
-use super::orient::{colour_planes, normals, Guide};
+use super::orient::{normals, plane, Guide};
 use crate::image::Image;
 use crate::meter::Meter;
 
@@ -23,10 +23,7 @@ pub fn colour_guide(color: &Image) -> Guide {
             0.0
         }
     };
-    let planes = colour_planes(color)
-        .into_iter()
-        .map(|p| p.into_iter().map(tone).collect())
-        .collect();
+    let planes = (0..3).map(|k| plane(color.data(), 3, k, tone)).collect();
     Guide {
         w,
         h,

@@ -8,7 +8,7 @@
 
 use rayon::prelude::*;
 
-use crate::image::Image;
+use crate::image::{par_vec, Image};
 use crate::render_set::{Feature, FeatureSet};
 
 /// σ, in pixels, of the Gaussian the tensor is summed with.
@@ -34,14 +34,13 @@ impl Guide {
             };
             let c = img.channels();
             for k in 0..c {
-                planes.push(
-                    img.data()
-                        .iter()
-                        .skip(k)
-                        .step_by(c)
-                        .map(|&v| if v.is_finite() { v * scale } else { 0.0 })
-                        .collect(),
-                );
+                planes.push(plane(img.data(), c, k, |v| {
+                    if v.is_finite() {
+                        v * scale
+                    } else {
+                        0.0
+                    }
+                }));
             }
             if feature == Feature::Albedo {
                 albedo = planes.len();
@@ -84,7 +83,22 @@ pub fn mix(p: &[f32], i: [usize; 4], (fx, fy): (f32, f32)) -> f32 {
 
 /// A 3-channel image's channels as separate planes, for bilinear reads.
 pub fn colour_planes(color: &Image) -> [Vec<f32>; 3] {
-    std::array::from_fn(|k| color.data().iter().skip(k).step_by(3).copied().collect())
+    std::array::from_fn(|k| plane(color.data(), 3, k, |v| v))
+}
+
+/// Channel `k` of `c` interleaved channels as a plane, each value through `f`; in parallel
+/// blocks of pixels.
+pub fn plane(data: &[f32], c: usize, k: usize, f: impl Fn(f32) -> f32 + Sync) -> Vec<f32> {
+    const BLOCK: usize = 1 << 14;
+    let mut out = par_vec(0.0f32, data.len() / c);
+    out.par_chunks_mut(BLOCK)
+        .zip(data.par_chunks(BLOCK * c))
+        .for_each(|(out, px)| {
+            for (o, px) in out.iter_mut().zip(px.chunks_exact(c)) {
+                *o = f(px[k]);
+            }
+        });
+    out
 }
 
 /// Moves `px` by `change`, scaled down where the change's mean square exceeds `tolerance` times
@@ -104,25 +118,14 @@ pub fn gated_move(px: &mut [f32], change: [f64; 3], var: f64, tolerance: f64) {
 /// Per pixel, the unit direction (x, y) across its edge: the structure tensor's main axis.
 pub fn normals(guide: &Guide) -> Vec<(f32, f32)> {
     let (w, h) = (guide.w, guide.h);
-    let at = |p: &[f32], x: isize, y: isize| {
-        p[(y.clamp(0, h as isize - 1) as usize) * w + x.clamp(0, w as isize - 1) as usize]
-    };
-    // The tensor's three entries per pixel, summed over the guide's channels.
+    // The tensor's three entries per pixel, summed over the guide's channels, a row at a time
+    // (edges clamped).
     let mut j: Vec<[f32; 3]> = vec![[0.0; 3]; w * h];
-    j.par_iter_mut().enumerate().for_each(|(i, e)| {
-        let (x, y) = ((i % w) as isize, (i / w) as isize);
+    j.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, e)| {
+        let (above, below) = (y.saturating_sub(1), (y + 1).min(h - 1));
         for p in &guide.planes {
-            let gx = at(p, x + 1, y - 1) + 2.0 * at(p, x + 1, y) + at(p, x + 1, y + 1)
-                - at(p, x - 1, y - 1)
-                - 2.0 * at(p, x - 1, y)
-                - at(p, x - 1, y + 1);
-            let gy = at(p, x - 1, y + 1) + 2.0 * at(p, x, y + 1) + at(p, x + 1, y + 1)
-                - at(p, x - 1, y - 1)
-                - 2.0 * at(p, x, y - 1)
-                - at(p, x + 1, y - 1);
-            e[0] += gx * gx;
-            e[1] += gy * gy;
-            e[2] += gx * gy;
+            let row = |yy: usize| &p[yy * w..(yy + 1) * w];
+            sobel_row(row(above), row(y), row(below), e);
         }
     });
     let j = gaussian(&j, w, h, TENSOR_SIGMA);
@@ -134,34 +137,91 @@ pub fn normals(guide: &Guide) -> Vec<(f32, f32)> {
         .collect()
 }
 
-/// A separable Gaussian (σ `sigma`, radius ⌈3σ⌉, edges clamped) of three planes at once.
+/// Adds one plane's Sobel tensor terms (gx², gy², gx·gy) of a row to `e`, from the rows above,
+/// at and below it; columns clamped at the edges.
+fn sobel_row(um: &[f32], u0: &[f32], up: &[f32], e: &mut [[f32; 3]]) {
+    let w = e.len();
+    // The same sums in the same order at every pixel, whichever of the two loops it is in.
+    #[inline(always)]
+    fn add(e: &mut [f32; 3], [m0, mm, mp, zm, zp, p0, pm, pp]: [f32; 8]) {
+        let gx = mp + 2.0 * zp + pp - mm - 2.0 * zm - pm;
+        let gy = pm + 2.0 * p0 + pp - mm - 2.0 * m0 - mp;
+        e[0] += gx * gx;
+        e[1] += gy * gy;
+        e[2] += gx * gy;
+    }
+    let edge = |x: usize| {
+        let (xm, xp) = (x.saturating_sub(1), (x + 1).min(w - 1));
+        [um[x], um[xm], um[xp], u0[xm], u0[xp], up[x], up[xm], up[xp]]
+    };
+    if w < 3 {
+        for (x, e) in e.iter_mut().enumerate() {
+            add(e, edge(x));
+        }
+        return;
+    }
+    add(&mut e[0], edge(0));
+    let inner = e[1..w - 1]
+        .iter_mut()
+        .zip(um.windows(3).zip(u0.windows(3)).zip(up.windows(3)));
+    for (e, ((m, z), p)) in inner {
+        add(e, [m[1], m[0], m[2], z[0], z[2], p[1], p[0], p[2]]);
+    }
+    add(&mut e[w - 1], edge(w - 1));
+}
+
+/// A separable Gaussian (σ `sigma`, radius ⌈3σ⌉, edges clamped) of three planes at once. Each
+/// pixel adds its taps in order from −r to r, then divides by their sum.
 fn gaussian(v: &[[f32; 3]], w: usize, h: usize, sigma: f32) -> Vec<[f32; 3]> {
-    let r = (3.0 * sigma).ceil() as isize;
-    let taps: Vec<f32> = (-r..=r)
+    let r = (3.0 * sigma).ceil() as usize;
+    let ri = r as isize;
+    let taps: Vec<f32> = (-ri..=ri)
         .map(|d| (-(d * d) as f32 / (2.0 * sigma * sigma)).exp())
         .collect();
     let norm: f32 = taps.iter().sum();
-    let pass = |src: &[[f32; 3]], horizontal: bool| -> Vec<[f32; 3]> {
-        let mut out = vec![[0.0f32; 3]; w * h];
-        out.par_iter_mut().enumerate().for_each(|(i, o)| {
-            let (x, y) = ((i % w) as isize, (i / w) as isize);
-            for (d, &t) in (-r..=r).zip(&taps) {
-                let j = if horizontal {
-                    y as usize * w + (x + d).clamp(0, w as isize - 1) as usize
-                } else {
-                    (y + d).clamp(0, h as isize - 1) as usize * w + x as usize
-                };
-                for k in 0..3 {
-                    o[k] += t * src[j][k];
+    // Along the rows: each row with r copies of its edge pixels each side, so that every tap is
+    // one shifted slice.
+    let mut across = vec![[0.0f32; 3]; w * h];
+    across
+        .par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each_init(Vec::new, |line, (y, out)| {
+            let src = &v[y * w..(y + 1) * w];
+            line.clear();
+            line.extend(std::iter::repeat_n(src[0], r));
+            line.extend_from_slice(src);
+            line.extend(std::iter::repeat_n(src[w - 1], r));
+            let out = out.as_flattened_mut();
+            for (d, &t) in taps.iter().enumerate() {
+                let shifted = line[d..d + w].as_flattened();
+                for (o, &s) in out.iter_mut().zip(shifted) {
+                    *o += t * s;
                 }
             }
-            for k in o.iter_mut() {
-                *k /= norm;
+            for o in out.iter_mut() {
+                *o /= norm;
             }
         });
-        out
-    };
-    pass(&pass(v, true), false)
+    // Down the columns: whole rows, clamped at the edges.
+    let mut out = vec![[0.0f32; 3]; w * h];
+    out.par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(y, out)| {
+            let out = out.as_flattened_mut();
+            for (d, &t) in (-ri..=ri).zip(&taps) {
+                let yy = (y as isize + d).clamp(0, h as isize - 1) as usize;
+                for (o, &s) in out
+                    .iter_mut()
+                    .zip(across[yy * w..(yy + 1) * w].as_flattened())
+                {
+                    *o += t * s;
+                }
+            }
+            for o in out.iter_mut() {
+                *o /= norm;
+            }
+        });
+    out
 }
 
 #[cfg(test)]
@@ -185,6 +245,89 @@ mod tests {
         let hz = normals(&guide_of(16, 16, |_, y| if y < 8 { 0.0 } else { 1.0 }));
         let (nx, ny) = hz[8 * 16 + 8];
         assert!(ny.abs() > 0.99 && nx.abs() < 0.05, "{nx} {ny}");
+    }
+
+    /// The tensor's directions pixel by pixel, every read clamped on its own: what the row
+    /// passes of [`normals`] must give to the bit.
+    fn normals_by_pixel(guide: &Guide) -> Vec<(f32, f32)> {
+        let (w, h) = (guide.w, guide.h);
+        let at = |p: &[f32], x: isize, y: isize| {
+            p[(y.clamp(0, h as isize - 1) as usize) * w + x.clamp(0, w as isize - 1) as usize]
+        };
+        let mut j = vec![[0.0f32; 3]; w * h];
+        for (i, e) in j.iter_mut().enumerate() {
+            let (x, y) = ((i % w) as isize, (i / w) as isize);
+            for p in &guide.planes {
+                let gx = at(p, x + 1, y - 1) + 2.0 * at(p, x + 1, y) + at(p, x + 1, y + 1)
+                    - at(p, x - 1, y - 1)
+                    - 2.0 * at(p, x - 1, y)
+                    - at(p, x - 1, y + 1);
+                let gy = at(p, x - 1, y + 1) + 2.0 * at(p, x, y + 1) + at(p, x + 1, y + 1)
+                    - at(p, x - 1, y - 1)
+                    - 2.0 * at(p, x, y - 1)
+                    - at(p, x + 1, y - 1);
+                e[0] += gx * gx;
+                e[1] += gy * gy;
+                e[2] += gx * gy;
+            }
+        }
+        let r = (3.0 * TENSOR_SIGMA).ceil() as isize;
+        let taps: Vec<f32> = (-r..=r)
+            .map(|d| (-(d * d) as f32 / (2.0 * TENSOR_SIGMA * TENSOR_SIGMA)).exp())
+            .collect();
+        let norm: f32 = taps.iter().sum();
+        let pass = |src: &[[f32; 3]], horizontal: bool| -> Vec<[f32; 3]> {
+            let mut out = vec![[0.0f32; 3]; w * h];
+            for (i, o) in out.iter_mut().enumerate() {
+                let (x, y) = ((i % w) as isize, (i / w) as isize);
+                for (d, &t) in (-r..=r).zip(&taps) {
+                    let j = if horizontal {
+                        y as usize * w + (x + d).clamp(0, w as isize - 1) as usize
+                    } else {
+                        (y + d).clamp(0, h as isize - 1) as usize * w + x as usize
+                    };
+                    for k in 0..3 {
+                        o[k] += t * src[j][k];
+                    }
+                }
+                for k in o.iter_mut() {
+                    *k /= norm;
+                }
+            }
+            out
+        };
+        pass(&pass(&j, true), false)
+            .iter()
+            .map(|&[xx, yy, xy]| {
+                let theta = 0.5 * (2.0 * xy).atan2(xx - yy);
+                (theta.cos(), theta.sin())
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_row_passes_give_the_per_pixel_directions_bit_for_bit() {
+        // Two planes of scattered values (negative ones and zeros among them), on sizes narrower
+        // and lower than the Sobel and Gaussian windows too.
+        for (w, h) in [(1, 1), (2, 5), (3, 3), (7, 2), (13, 11), (40, 9)] {
+            let value = |i: usize, k: usize| ((i * 37 + k * 11) % 17) as f32 / 8.0 - 0.9;
+            let guide = Guide {
+                w,
+                h,
+                planes: (0..2)
+                    .map(|k| (0..w * h).map(|i| value(i, k)).collect())
+                    .collect(),
+                albedo: 1,
+            };
+            let bits = |v: Vec<(f32, f32)>| -> Vec<(u32, u32)> {
+                v.iter().map(|(a, b)| (a.to_bits(), b.to_bits())).collect()
+            };
+            assert_eq!(
+                bits(normals(&guide)),
+                bits(normals_by_pixel(&guide)),
+                "{w}x{h}"
+            );
+        }
     }
 
     #[test]

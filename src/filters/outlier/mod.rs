@@ -28,6 +28,7 @@ pub use params::{Action, DetectParams, Detection, Guides, Rule};
 pub use repair::repair;
 pub use spread::{spread_light, Given, SpreadParams, SpreadStage};
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::buffers::Buffers;
@@ -40,10 +41,14 @@ use crate::render_set::Feature;
 /// be brighter in one channel, and that is not light to give back).
 fn removed_light(color: &Image, repaired: &Image) -> Image {
     let mut removed = color.par_clone();
-    for (r, &after) in removed.data_mut().iter_mut().zip(repaired.data()) {
-        let d = *r - after;
-        *r = if d.is_finite() && d > 0.0 { d } else { 0.0 };
-    }
+    removed
+        .data_mut()
+        .par_iter_mut()
+        .zip(repaired.data())
+        .for_each(|(r, &after)| {
+            let d = *r - after;
+            *r = if d.is_finite() && d > 0.0 { d } else { 0.0 };
+        });
     removed
 }
 

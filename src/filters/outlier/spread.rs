@@ -180,11 +180,6 @@ pub fn spread_light(
         0.5 / (params.albedo_tol * params.albedo_tol),
         0.5 / (params.normal_tol * params.normal_tol),
     );
-    // −ln of the surface weight exp(−½(Δalbedo/tol)² − ½(Δnormal/tol)²).
-    let unlike = |i: usize, j: usize| -> f32 {
-        let (da2, dn) = guides.squared_distances(i, j);
-        ka * da2 + kn * dn * dn
-    };
     // Each source shares its light as a Gaussian bump (σ half the radius: a smooth rise, no
     // square), at the density it would have on a flat surface filling the window, not over the
     // pixels of its own surface alone: a firefly on a sliver of surface would otherwise pour it all
@@ -227,59 +222,125 @@ pub fn spread_light(
         .data_mut()
         .par_chunks_mut(3 * w.max(1))
         .enumerate()
-        .map_init(Vec::new, |gained, (y, row)| {
-            if meter.cancelled() {
-                return 0.0;
-            }
-            meter.rows(1);
-            gained.clear();
-            gained.resize(w, [0.0f64; 3]);
-            let rows = y.saturating_sub(r)..(y + r + 1).min(h);
-            for (sy, row_sources) in rows.clone().zip(&sources[rows]) {
-                for s in row_sources {
-                    let i = sy * w + s.x;
-                    let x0 = s.x.saturating_sub(r);
-                    let x1 = (s.x + r + 1).min(w);
-                    for (x, gain) in (x0..x1).zip(&mut gained[x0..x1]) {
+        .map_init(
+            || (Vec::new(), Vec::new()),
+            |(gained, unlike), (y, row)| {
+                if meter.cancelled() {
+                    return 0.0;
+                }
+                meter.rows(1);
+                gained.clear();
+                gained.resize(w, [0.0f64; 3]);
+                unlike.resize(side, 0.0f32);
+                let rows = y.saturating_sub(r)..(y + r + 1).min(h);
+                for (sy, row_sources) in rows.clone().zip(&sources[rows]) {
+                    for s in row_sources {
+                        let x0 = s.x.saturating_sub(r);
+                        let x1 = (s.x + r + 1).min(w);
+                        let unlike = &mut unlike[..x1 - x0];
+                        row_unlike(guides, (ka, kn), sy * w + s.x, y * w + x0, unlike);
+                        // The window's row this receiving row is, from x0 on.
+                        let at = (y + r - sy) * side + (x0 + r - s.x);
+                        let (far, bump) =
+                            (&far[at..at + unlike.len()], &bump[at..at + unlike.len()]);
                         // The spike itself takes nothing back.
-                        if sy == y && x == s.x {
-                            continue;
-                        }
-                        let at = (y + r - sy) * side + (x + r - s.x);
-                        let u = unlike(i, y * w + x);
-                        // Below exp(−18) a share is nothing worth its exponential; one surface
-                        // (u = 0) needs none; a feature that is not a number shares nothing.
-                        let e = far[at] + u;
-                        if e.is_nan() || e > 18.0 {
-                            continue;
-                        }
-                        let share = if u > 0.0 {
-                            bump[at] * (-u).exp() as f64
-                        } else {
-                            bump[at]
-                        };
-                        for (g, l) in gain.iter_mut().zip(s.light) {
-                            *g += share * l;
+                        let spike = if sy == y { s.x - x0 } else { usize::MAX };
+                        let cells = gained[x0..x1]
+                            .iter_mut()
+                            .zip(unlike.iter())
+                            .zip(far.iter().zip(bump));
+                        for (t, ((gain, &u), (&far, &bump))) in cells.enumerate() {
+                            // Below exp(−18) a share is nothing worth its exponential; one surface
+                            // (u = 0) needs none; a feature that is not a number shares nothing.
+                            let e = far + u;
+                            if t == spike || e.is_nan() || e > 18.0 {
+                                continue;
+                            }
+                            let share = if u > 0.0 {
+                                bump * (-u).exp() as f64
+                            } else {
+                                bump
+                            };
+                            for (g, l) in gain.iter_mut().zip(s.light) {
+                                *g += share * l;
+                            }
                         }
                     }
                 }
-            }
-            let mut returned = 0.0;
-            for (x, (px, gain)) in row.chunks_exact_mut(3).zip(gained.iter()).enumerate() {
-                let j = y * w + x;
-                for k in 0..3 {
-                    let sd = clean(v[3 * j + k]).sqrt();
-                    let add = gain[k].min(params.cap * sd);
-                    if add > 0.0 {
-                        px[k] = (px[k] as f64 + add).min(f32::MAX as f64) as f32;
-                        returned += add;
+                let mut returned = 0.0;
+                for (x, (px, gain)) in row.chunks_exact_mut(3).zip(gained.iter()).enumerate() {
+                    let j = y * w + x;
+                    for k in 0..3 {
+                        let sd = clean(v[3 * j + k]).sqrt();
+                        let add = gain[k].min(params.cap * sd);
+                        if add > 0.0 {
+                            px[k] = (px[k] as f64 + add).min(f32::MAX as f64) as f32;
+                            returned += add;
+                        }
                     }
                 }
-            }
-            returned
-        })
+                returned
+            },
+        )
         .sum();
     Given { removed, returned }
+}
+
+/// −ln of the surface weight exp(−½(Δalbedo/tol)² − ½(Δnormal/tol)²) of source pixel `i` to each
+/// of the pixels from `j` on along its row, into `out`: [`Guides::squared_distances`]'
+/// operations with the source's features read once, not at every pair.
+fn row_unlike(guides: &Guides, (ka, kn): (f32, f32), i: usize, j: usize, out: &mut [f32]) {
+    // The albedo's squared distance first (0 without one), then u = ka·da² + kn·dn² as for a pair.
+    if let Some(a) = guides.albedo {
+        let p = first3(a.pixel(i));
+        let squared = |o: &mut f32, q: [f32; 3]| {
+            *o = (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2);
+        };
+        for_row(a, j, out, squared);
+    } else {
+        out.fill(0.0);
+    }
+    let Some(m) = guides.normal else {
+        for o in out.iter_mut() {
+            *o = ka * *o + kn * 0.0 * 0.0;
+        }
+        return;
+    };
+    let p = first3(m.pixel(i));
+    let known = p[0] != 0.0 || p[1] != 0.0 || p[2] != 0.0;
+    let unlike = |o: &mut f32, q: [f32; 3]| {
+        let dot = p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
+        let dn = if known && (q[0] != 0.0 || q[1] != 0.0 || q[2] != 0.0) {
+            ((1.0 - dot) * 0.5).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        *o = ka * *o + kn * dn * dn;
+    };
+    for_row(m, j, out, unlike);
+}
+
+/// A pixel's first three channels.
+fn first3(px: &[f32]) -> [f32; 3] {
+    [px[0], px[1], px[2]]
+}
+
+/// `f` on each cell of `out` and the first three channels of its pixel of `img`, the pixels from
+/// `j` on: read as whole arrays when the image has three channels (the common case, which the
+/// loop then vectorises).
+#[inline(always)]
+fn for_row(img: &Image, j: usize, out: &mut [f32], f: impl Fn(&mut f32, [f32; 3])) {
+    let c = img.channels();
+    let data = &img.data()[j * c..(j + out.len()) * c];
+    if c == 3 {
+        for (o, q) in out.iter_mut().zip(data.as_chunks::<3>().0) {
+            f(o, *q);
+        }
+    } else {
+        for (o, q) in out.iter_mut().zip(data.chunks_exact(c)) {
+            f(o, first3(q));
+        }
+    }
 }
 
 /// A removed light's value as spread: finite and positive, else nothing.
@@ -404,6 +465,55 @@ mod tests {
         spread(&mut out, &light, &variance, &guides, 1e6);
         assert!(out.data().iter().all(|v| v.is_finite()));
         assert_eq!(out.pixel(15 * 31 + 16)[0], 0.2, "the NaN column took light");
+    }
+
+    #[test]
+    fn a_row_of_surface_distances_is_each_pairs() {
+        // Albedo and normals of three and of four channels, with unknown (zero) and NaN normals,
+        // each guide alone and both: every cell the pair's own distances give, to the bit.
+        let (w, h) = (23, 4);
+        for c in [3, 4] {
+            let albedo = Image::from_fn(w, h, c, |x, y, k| {
+                ((x * 7 + y * 3 + k * 5) % 11) as f32 / 10.0
+            });
+            let normal = Image::from_fn(w, h, c, |x, y, k| match (x % 5, x + y) {
+                (0, _) => 0.0,
+                (_, 9) => f32::NAN,
+                _ => ((x + 2 * y + k) % 7) as f32 / 7.0 - 0.4,
+            });
+            let guides = [
+                Guides {
+                    albedo: Some(&albedo),
+                    normal: Some(&normal),
+                },
+                Guides {
+                    albedo: Some(&albedo),
+                    normal: None,
+                },
+                Guides {
+                    albedo: None,
+                    normal: Some(&normal),
+                },
+                Guides::default(),
+            ];
+            let (ka, kn) = (50.0f32, 200.0f32);
+            for g in &guides {
+                for i in [0, w + 5, 2 * w + 7, 3 * w + 22] {
+                    for y in 0..h {
+                        let mut out = vec![-1.0f32; w];
+                        row_unlike(g, (ka, kn), i, y * w, &mut out);
+                        for (x, &u) in out.iter().enumerate() {
+                            let (da2, dn) = g.squared_distances(i, y * w + x);
+                            let want = ka * da2 + kn * dn * dn;
+                            assert!(
+                                u.to_bits() == want.to_bits() || (u.is_nan() && want.is_nan()),
+                                "c {c}, source {i}, ({x}, {y}): {u} against {want}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
     }
 
     #[test]

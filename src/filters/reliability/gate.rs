@@ -29,7 +29,7 @@ use super::mean::{pull_to_surface_mean, Reading};
 use super::median::{fill_unrecorded, median_along, square_median, MEDIAN_RADIUS};
 use super::variance::{noise_variance, signal_variance};
 use crate::error::Result;
-use crate::image::Image;
+use crate::image::{par_vec, Image};
 use crate::kernels::padded::{Margin, Padded};
 use crate::meter::Meter;
 
@@ -121,25 +121,30 @@ pub fn gate_metered(
         &medians
     };
     meter.step()?;
+    // Every pass below in parallel, each pixel's operations as one pass would do them.
     let rho: Vec<f64> = signal
-        .iter()
+        .par_iter()
         .zip(&noise)
         .map(|(&s, &n)| (s + EPS) / (s + p.pair_noise * n + EPS))
         .collect();
+    // The raw planes without their margins, copied a row at a time.
     let raw: Vec<Vec<f64>> = src
         .planes
         .iter()
         .map(|plane| {
-            (0..w * h)
-                .map(|i| plane[src.index((i % w) as isize, (i / w) as isize)])
-                .collect()
+            let mut v = par_vec(0.0, w * h);
+            v.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, row)| {
+                let at = src.index(0, y as isize);
+                row.copy_from_slice(&plane[at..at + w]);
+            });
+            v
         })
         .collect();
     let mut gated: Vec<Vec<f64>> = raw
         .iter()
         .zip(centres)
         .map(|(v, m)| {
-            v.iter()
+            v.par_iter()
                 .zip(m)
                 .zip(&rho)
                 .map(|((&v, &m), &r)| m + r * (v - m))
@@ -172,7 +177,7 @@ pub fn gate_metered(
                 renormalise(px, img.pixel(i));
             }
         });
-    let rho = Image::from_vec(w, h, 1, rho.iter().map(|&r| r as f32).collect())
+    let rho = Image::from_vec(w, h, 1, rho.par_iter().map(|&r| r as f32).collect())
         .expect("one value a pixel");
     Ok((out, rho))
 }

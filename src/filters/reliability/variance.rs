@@ -120,18 +120,21 @@ pub(super) fn signal_variance(
 pub(super) fn box_mean(v: &[f64], (w, h): (usize, usize), radius: usize) -> Vec<f64> {
     let n = (2 * radius + 1) as f64;
     let mut rows = par_vec(0.0, w * h);
-    rows.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
-        let src = &v[y * w..(y + 1) * w];
-        let mut line = Vec::with_capacity(w + 2 * radius);
-        line.extend(std::iter::repeat_n(src[0], radius));
-        line.extend_from_slice(src);
-        line.extend(std::iter::repeat_n(src[w - 1], radius));
-        for t in 0..=2 * radius {
-            for (o, &s) in out.iter_mut().zip(&line[t..t + w]) {
-                *o += s;
+    // One padded line per worker, not one allocation per row.
+    rows.par_chunks_mut(w)
+        .enumerate()
+        .for_each_init(Vec::new, |line, (y, out)| {
+            let src = &v[y * w..(y + 1) * w];
+            line.clear();
+            line.extend(std::iter::repeat_n(src[0], radius));
+            line.extend_from_slice(src);
+            line.extend(std::iter::repeat_n(src[w - 1], radius));
+            for t in 0..=2 * radius {
+                for (o, &s) in out.iter_mut().zip(&line[t..t + w]) {
+                    *o += s;
+                }
             }
-        }
-    });
+        });
     let mut out = par_vec(0.0, w * h);
     let r = radius as isize;
     out.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
