@@ -92,7 +92,8 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
     // A `reliability` stage's surface mean against its median centre; a `coverage` stage's
     // across-edge spread (the renderer's estimated pixel-filter width) and its step along the
     // edges only the colour shows, each against none; an `outlier` stage's dark dots and a `blend`
-    // stage's noise-level cap, where a pipeline turns them on, against off.
+    // stage's noise-level cap and a `spread` stage's highlights, where a pipeline turns them on,
+    // against off.
     let unset_or = |want: toml::Value| move |v: Option<&toml::Value>| v.is_none_or(|v| *v == want);
     out.extend(switched_variants(
         spec,
@@ -129,6 +130,15 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
             toml::Value::Float(0.0),
         ),
         "without the noise-level cap",
+    )?);
+    out.extend(switched_variants(
+        spec,
+        ("spread", "highlights"),
+        (
+            |v: Option<&toml::Value>| v.and_then(toml::Value::as_float).is_some_and(|a| a > 0.0),
+            toml::Value::Float(0.0),
+        ),
+        "without highlights kept",
     )?);
     out.extend(noise_variants(spec)?);
     let paths = feature_paths(spec);

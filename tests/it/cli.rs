@@ -338,6 +338,7 @@ fn ablate_prints_and_writes_the_table() {
         "coverage without the colour's own edges",
         "outlier one-sided (dark dots kept)",
         "blend without the noise-level cap",
+        "spread without highlights kept",
         "without prefilter",
         "without pyramid",
         "without atrous",
@@ -359,8 +360,9 @@ fn ablate_prints_and_writes_the_table() {
     // Header, then: full, nine stages removed (the noise stage is not: later stages read it; the
     // outlier's row takes its spread with it), the reliability's median centre, coverage without
     // its across-edge spread and without its colour-edge step, the outlier without dark dots, the
-    // blend without its noise-level cap, the four noise rows, eight weights zeroed, plain SID.
-    assert_eq!(text.lines().count(), 1 + 28, "{text}");
+    // blend without its noise-level cap, the spread without its highlights, the four noise rows,
+    // eight weights zeroed, plain SID.
+    assert_eq!(text.lines().count(), 1 + 29, "{text}");
     assert!(text.starts_with("variant,ssim,psnr,relmse,seconds,delta_ssim"));
     let bad = gsid(&[
         "ablate",

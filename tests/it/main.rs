@@ -21,6 +21,7 @@ mod farm;
 mod formats;
 mod gsid_beats_sid;
 mod hard_cases;
+mod highlights;
 mod inputs_kept;
 mod io;
 mod metrics;

@@ -76,6 +76,32 @@ fn the_blend_noise_level_is_a_quantile() {
     }
 }
 
+/// The spread's highlight test takes a significance level: off at 0, at most one half.
+#[test]
+fn the_spread_highlights_is_a_significance_level() {
+    for (value, ok) in [
+        ("-0.01", false),
+        ("0.6", false),
+        ("nan", false),
+        ("0", true),
+        ("0.05", true),
+    ] {
+        let mut spec = PipelineSpec::builtin("full").unwrap();
+        spec.apply_set(&format!("spread.highlights={value}"))
+            .unwrap();
+        match spec.build() {
+            Ok(_) => assert!(ok, "{value} accepted"),
+            Err(e) => {
+                let err = e.to_string();
+                assert!(
+                    !ok && err.contains("spread.highlights") && err.contains("0 (off) to 0.5"),
+                    "{value}: {err}"
+                );
+            }
+        }
+    }
+}
+
 /// A pyramid with nothing to run at its levels says so (it was accepted silently); it stays
 /// allowed, as the identity that tests the split and the blend.
 #[test]

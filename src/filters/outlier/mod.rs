@@ -13,9 +13,10 @@
 //!
 //! Beside this stage: `params` (rules, actions, settings, guides, the detection), `neighbourhood`
 //! (the window and its statistics), `surface` (the feature rule's same-surface bits), `detect` and
-//! `repair`.
+//! `repair`; `spread` gives the clamp's light back, `highlight` tells it which pixels were highlights.
 
 mod detect;
+mod highlight;
 mod neighbourhood;
 mod params;
 mod repair;

@@ -19,11 +19,17 @@
 //! output = "out"
 //! radius = 15
 //! cap = 0.5
+//! highlights = 0.01        # significance level of the highlight test (`highlight`; 0: off)
 //! ```
+//!
+//! With `highlights` above 0, a flagged pixel the `highlight` test calls a highlight (it touches
+//! another flagged pixel, where chance would rarely make one) gets its own light back in full, in
+//! place: it was structure the clamp took, not a spike.
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use super::highlight::highlights;
 use super::params::Guides;
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
@@ -48,6 +54,9 @@ pub struct SpreadParams {
     pub albedo_tol: f32,
     /// Largest normal difference (1 − n·n′)/2 of "the same surface", as in the outlier stage.
     pub normal_tol: f32,
+    /// Significance level of the highlight test: flagged pixels that touch, where the image's share
+    /// of flagged pixels makes that rarer than this by chance, get their light back in place. 0: off.
+    pub highlights: f64,
 }
 
 impl Default for SpreadParams {
@@ -59,6 +68,7 @@ impl Default for SpreadParams {
             cap: 0.5,
             albedo_tol: 0.1,
             normal_tol: 0.05,
+            highlights: 0.0,
         }
     }
 }
@@ -79,6 +89,13 @@ impl SpreadParams {
             if !(value > 0.0 && value <= hi) {
                 return Err(Error::range(key, value, range));
             }
+        }
+        if !(0.0..=0.5).contains(&self.highlights) {
+            return Err(Error::range(
+                "highlights",
+                self.highlights,
+                "0 (off) to 0.5",
+            ));
         }
         for (key, name) in [("light", &self.light), ("noise", &self.noise)] {
             if name.is_empty() {
@@ -195,10 +212,23 @@ pub fn spread_light(
         .collect();
     let bump: Vec<f64> = far.iter().map(|&e| (-e as f64).exp()).collect();
     let area: f64 = bump.iter().sum::<f64>() - 1.0;
+    // A highlight's light goes back where it was taken, whole, and is no source of the bumps.
+    let kept = highlights(light, params.highlights);
+    let mut in_place = 0.0f64;
+    for (i, px) in out.data_mut().chunks_exact_mut(3).enumerate() {
+        if kept[i] {
+            for (v, &l) in px.iter_mut().zip(light.pixel(i)) {
+                let add = positive(l);
+                *v = (*v as f64 + add).min(f32::MAX as f64) as f32;
+                in_place += add;
+            }
+        }
+    }
     let sources: Vec<Vec<Source>> = (0..h)
         .into_par_iter()
         .map(|y| {
             (0..w)
+                .filter(|&x| !kept[y * w + x])
                 .filter_map(|x| {
                     let l = light.pixel(y * w + x);
                     let light: [f64; 3] = std::array::from_fn(|k| positive(l[k]) / area);
@@ -214,7 +244,10 @@ pub fn spread_light(
             .map(|s| s.light.iter().sum::<f64>())
             .sum::<f64>();
     if removed == 0.0 {
-        return Given::default();
+        return Given {
+            removed: in_place,
+            returned: in_place,
+        };
     }
     meter.pass(h);
     let v = variance.data();
@@ -282,8 +315,11 @@ pub fn spread_light(
                 returned
             },
         )
-        .sum();
-    Given { removed, returned }
+        .sum::<f64>();
+    Given {
+        removed: removed + in_place,
+        returned: returned + in_place,
+    }
 }
 
 /// −ln of the surface weight exp(−½(Δalbedo/tol)² − ½(Δnormal/tol)²) of source pixel `i` to each
