@@ -57,22 +57,22 @@ fn out_of_range_factors_are_named() {
 }
 
 #[test]
-fn the_blend_noise_level_is_a_quantile() {
-    for value in ["-0.1", "1.5", "nan"] {
-        let mut spec = PipelineSpec::builtin("full").unwrap();
-        spec.apply_set(&format!("blend.noise_level={value}"))
-            .unwrap();
-        let err = spec.build().err().expect("rejected").to_string();
-        assert!(
-            err.contains("blend.noise_level") && err.contains("0 (off) to 1"),
-            "{value}: {err}"
-        );
-    }
-    for value in ["0", "0.5", "1"] {
-        let mut spec = PipelineSpec::builtin("full").unwrap();
-        spec.apply_set(&format!("blend.noise_level={value}"))
-            .unwrap();
-        assert!(spec.build().is_ok(), "{value}");
+fn the_blend_noise_levels_are_quantiles() {
+    for key in ["noise_level", "leak_level"] {
+        for value in ["-0.1", "1.5", "nan"] {
+            let mut spec = PipelineSpec::builtin("full").unwrap();
+            spec.apply_set(&format!("blend.{key}={value}")).unwrap();
+            let err = spec.build().err().expect("rejected").to_string();
+            assert!(
+                err.contains(&format!("blend.{key}")) && err.contains("0 (off) to 1"),
+                "{value}: {err}"
+            );
+        }
+        for value in ["0", "0.5", "1"] {
+            let mut spec = PipelineSpec::builtin("full").unwrap();
+            spec.apply_set(&format!("blend.{key}={value}")).unwrap();
+            assert!(spec.build().is_ok(), "{value}");
+        }
     }
 }
 

@@ -33,7 +33,7 @@ fn keep(color: &Image, filtered: &Image, variance: &Image, q: f64) -> Vec<f32> {
         Kernel::detect(),
         (color, filtered, variance),
         &FeatureSet::default(),
-        (2.0, 4.0, q),
+        (2.0, 4.0, q, 0.0),
         &Meter::default(),
     )
 }

@@ -15,11 +15,14 @@
 //! leak = 4.0             # a rise beyond √leak noise σ is light leaked from a neighbour
 //! noise_level = 0.0      # quantile of the image's noise-level function capping the test (0: off)
 //! stack_noise_level = 0.0 # the same for a variance measured from a shot's frames (`--temporal`)
+//! leak_level = 0.0       # quantile of the noise-level function capping the leak test (0: off)
 //! ```
 
 #[cfg(test)]
 mod cap_tests;
 mod error_estimate;
+#[cfg(test)]
+mod leak_tests;
 mod noise_level;
 mod weights;
 
@@ -56,6 +59,12 @@ pub struct BlendParams {
     /// the window's samples, it does not read structure as the image's estimate does, and the cap
     /// measured a loss there (docs/RESULTS.md "Keeping what the input has right").
     pub stack_noise_level: f64,
+    /// Above 0: the quantile (at most 1) of the image's noise-level function that caps the
+    /// variance the leak test holds a rise against, where the filter brightened a pixel whose
+    /// noise by that level is small against its brightness (nearly symmetric): the local estimate
+    /// reads a reflection's structure as noise and would let a highlight's light into the dark
+    /// pixels beside it. 0: the local estimate alone. Not under `--temporal`.
+    pub leak_level: f64,
 }
 
 impl Default for BlendParams {
@@ -68,6 +77,7 @@ impl Default for BlendParams {
             leak: 4.0,
             noise_level: 0.0,
             stack_noise_level: 0.0,
+            leak_level: 0.0,
         }
     }
 }
@@ -88,6 +98,7 @@ impl BlendParams {
         for (key, value) in [
             ("noise_level", self.noise_level),
             ("stack_noise_level", self.stack_noise_level),
+            ("leak_level", self.leak_level),
         ] {
             if !(0.0..=1.0).contains(&value) {
                 return Err(Error::range(key, value, "0 (off) to 1"));
@@ -139,16 +150,24 @@ impl Stage for BlendStage {
             &self.params.original,
             &self.params.noise,
         )?;
-        let (tolerance, noise_level) = if buffers.variance_from_stack() {
-            (self.params.stack_tolerance, self.params.stack_noise_level)
+        let (tolerance, noise_level, leak_level) = if buffers.variance_from_stack() {
+            (
+                self.params.stack_tolerance,
+                self.params.stack_noise_level,
+                0.0,
+            )
         } else {
-            (self.params.tolerance, self.params.noise_level)
+            (
+                self.params.tolerance,
+                self.params.noise_level,
+                self.params.leak_level,
+            )
         };
         let keep = keep_weights_metered(
             crate::kernels::simd::Kernel::detect(),
             (original, filtered, variance),
             buffers.features(),
-            (tolerance, self.params.leak, noise_level),
+            (tolerance, self.params.leak, noise_level, leak_level),
             &ctx.meter,
         );
         ctx.meter.check()?;

@@ -67,17 +67,29 @@ impl NoiseLevel {
     /// The function of `filtered`'s brightness against `variance`'s local estimates at quantile
     /// `q` (0..=1); `None` when the image has too few pixels for every bin to be a reading.
     pub(super) fn fit(filtered: &Image, variance: &Image, q: f64) -> Option<NoiseLevel> {
-        let n = filtered.pixel_count();
-        if n / BINS < MIN_BIN {
-            return None;
-        }
-        let mut pairs: Vec<(f64, f64)> = (0..n)
+        Self::fit_over(filtered, variance, q, false)
+    }
+
+    /// [`NoiseLevel::fit`] over the pixels with some noise only: where a few samples all missed
+    /// the light, black pixels of no measured noise fill the dark bins and would read their
+    /// level as 0, which the leak test must not believe.
+    pub(super) fn fit_noisy(filtered: &Image, variance: &Image, q: f64) -> Option<NoiseLevel> {
+        Self::fit_over(filtered, variance, q, true)
+    }
+
+    fn fit_over(filtered: &Image, variance: &Image, q: f64, noisy: bool) -> Option<NoiseLevel> {
+        let mut pairs: Vec<(f64, f64)> = (0..filtered.pixel_count())
             .into_par_iter()
             .map(|i| {
                 let v = pixel_variance(variance.pixel(i));
                 (ln_luminance(filtered.pixel(i)), v)
             })
+            .filter(|&(_, v)| !noisy || v > 0.0)
             .collect();
+        let n = pairs.len();
+        if n / BINS < MIN_BIN {
+            return None;
+        }
         // Ties in both keys are equal pairs: the order is the same whatever the threads.
         pairs.par_sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
         let mut centres: Vec<f64> = Vec::with_capacity(BINS);
@@ -153,6 +165,33 @@ pub(super) fn tested_variance(
         && change2 > SIGNIFICANT * SIGNIFICANT * cap
         && change2 <= SPIKE_SIGMAS * SPIKE_SIGMAS * var;
     if took_light && window_variance(filtered, (w, h), (x, y)) >= STRUCTURE * var {
+        cap
+    } else {
+        var
+    }
+}
+
+/// How far under a pixel's brightness the image's level σ must be for the leak test to trust it:
+/// where a pixel's noise is that small against its mean, its input is about as likely above the
+/// mean as below, so a rise beyond the level is light moved in, not the skew of a few samples.
+const SYMMETRIC: f64 = 0.1;
+
+/// The variance the leak test holds a pixel's rise against (`leak_level`): the image's level at
+/// its brightness where that is below its own estimate `var`, the filter made it brighter, and
+/// the level's σ is under a tenth of both its input's and its filtered brightness (the noise
+/// nearly symmetric), else
+/// `var`. Where the local estimate reads a reflection's or a refraction's structure as noise, a
+/// dark pixel beside a highlight takes the highlight's light through the filter and `var` lets it.
+pub(super) fn leak_variance(level: &NoiseLevel, (c, f): (&[f32], &[f32]), var: f64) -> f64 {
+    let cap = level.at(f);
+    if cap.partial_cmp(&var) != Some(std::cmp::Ordering::Less) {
+        return var;
+    }
+    let rise: f64 = (0..3).map(|k| f[k] as f64 - c[k] as f64).sum();
+    // Both the input's and the filtered brightness: an input of a few samples that all missed
+    // the light (0, or far below its mean) is the skew itself, whatever the filtered value.
+    let bright = ln_luminance(f).min(ln_luminance(c)).exp();
+    if rise > 0.0 && cap.sqrt() < SYMMETRIC * bright {
         cap
     } else {
         var

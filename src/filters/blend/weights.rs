@@ -4,7 +4,7 @@
 use rayon::prelude::*;
 
 use super::error_estimate::{blend_error_row, trimmed_chi2, BLEND_RADIUS};
-use super::noise_level::{tested_variance, NoiseLevel};
+use super::noise_level::{leak_variance, tested_variance, NoiseLevel};
 use crate::filters::noise::measured::pixel_variance;
 use crate::filters::noise::surface::{Mates, Surface};
 use crate::image::{par_vec, Image};
@@ -34,25 +34,30 @@ pub fn keep_weights(
         kernel,
         inputs,
         features,
-        (tolerance, leak, 0.0),
+        (tolerance, leak, 0.0, 0.0),
         &Meter::default(),
     )
 }
 
-/// [`keep_weights`] of (colour, filtered, variance) with (tolerance, leak, noise_level), skipping its
-/// remaining rows once `meter` is cancelled (the weights are then unfinished, for the caller to
-/// throw away). `noise_level` above 0 is the quantile of the image's noise-level function that caps
-/// the tested variance where the estimate may read structure (`noise_level`); 0 leaves it alone.
+/// [`keep_weights`] of (colour, filtered, variance) with (tolerance, leak, noise_level, leak_level),
+/// skipping its remaining rows once `meter` is cancelled (the weights are then unfinished, for the
+/// caller to throw away). `noise_level` above 0 is the quantile of the image's noise-level function
+/// that caps the tested variance where the estimate may read structure (`noise_level`);
+/// `leak_level` above 0 the quantile that caps the leak test's variance (`leak_level`); 0 leaves
+/// each alone.
 pub fn keep_weights_metered(
     kernel: Kernel,
     (color, filtered, variance): (&Image, &Image, &Image),
     features: &FeatureSet,
-    (tolerance, leak, noise_level): (f64, f64, f64),
+    (tolerance, leak, noise_level, leak_level): (f64, f64, f64, f64),
     meter: &Meter,
 ) -> Vec<f32> {
     let (w, h) = color.dims();
     let level = (noise_level > 0.0)
         .then(|| NoiseLevel::fit(filtered, variance, noise_level))
+        .flatten();
+    let leak_cap = (leak_level > 0.0)
+        .then(|| NoiseLevel::fit_noisy(filtered, variance, leak_level))
         .flatten();
     let surface = Surface::new(features, (w, h));
     let (c, f, v) = (color.data(), filtered.data(), variance.data());
@@ -87,19 +92,24 @@ pub fn keep_weights_metered(
                     Some(level) => tested_variance(level, (c, f), (w, h), (x, y), var),
                     None => var,
                 };
-                *keep = keep_weight(&c[3 * i..3 * i + 3], &f[3 * i..3 * i + 3], (var, tested), (err, n), tolerance, leak);
+                let (ci, fi) = (&c[3 * i..3 * i + 3], &f[3 * i..3 * i + 3]);
+                let leak_var = match &leak_cap {
+                    Some(level) => leak_variance(level, (ci, fi), var),
+                    None => var,
+                };
+                *keep = keep_weight(ci, fi, (var, tested, leak_var), (err, n), tolerance, leak);
             }
         });
     keep
 }
 
 /// One pixel's weight of [`keep_weights`]: its colour `c`, filtered value `f`, noise variance
-/// `var` and the variance its change is tested against (`tested`, at most `var`), and the
-/// trimmed mean `err` of (f − c)² over its `n` surface-mates.
+/// `var`, the variances its change and its rise are tested against (`tested`, `leak_var`, each
+/// at most `var`), and the trimmed mean `err` of (f − c)² over its `n` surface-mates.
 fn keep_weight(
     c: &[f32],
     f: &[f32],
-    (var, tested): (f64, f64),
+    (var, tested, leak_var): (f64, f64, f64),
     (err, n): (f64, usize),
     tolerance: f64,
     leak: f64,
@@ -118,7 +128,7 @@ fn keep_weight(
         .map(|k| (f[k] as f64 - c[k] as f64).max(0.0).powi(2))
         .sum::<f64>()
         / 3.0;
-    let leak = leak * var / gain.max(f64::MIN_POSITIVE);
+    let leak = leak * leak_var / gain.max(f64::MIN_POSITIVE);
     keep.min(leak).min(1.0) as f32
 }
 
