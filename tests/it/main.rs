@@ -36,6 +36,7 @@ mod progress;
 mod pyramid;
 mod quality;
 mod regress;
+mod reliability;
 mod render;
 mod sequence;
 mod spec_walks;
