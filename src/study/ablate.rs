@@ -89,7 +89,8 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
             out.push(Variant { name, spec: v });
         }
     }
-    // A `reliability` stage's surface mean against its median centre; a `coverage` stage's
+    // A `reliability` stage's surface mean against its median centre and its albedo floor (the
+    // geometry's reliability), where a pipeline turns it on, against off; a `coverage` stage's
     // across-edge spread (the renderer's estimated pixel-filter width) and its step along the
     // edges only the colour shows, each against none; an `outlier` stage's dark dots and a `blend`
     // stage's noise-level cap and a `spread` stage's highlights, where a pipeline turns them on,
@@ -100,6 +101,15 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
         ("reliability", "centre"),
         (unset_or("mean".into()), "median".into()),
         "with median centres",
+    )?);
+    out.extend(switched_variants(
+        spec,
+        ("reliability", "albedo_by_geometry"),
+        (
+            |v: Option<&toml::Value>| v == Some(&true.into()),
+            false.into(),
+        ),
+        "albedo without the geometry's floor",
     )?);
     out.extend(switched_variants(
         spec,

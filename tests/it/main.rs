@@ -37,6 +37,7 @@ mod progress;
 mod pyramid;
 mod quality;
 mod regress;
+mod reliability;
 mod render;
 mod sequence;
 mod spec_walks;

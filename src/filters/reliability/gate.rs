@@ -73,14 +73,16 @@ pub struct Params {
 
 /// The gated buffer and the reliability ρ of every pixel (one channel).
 pub fn gate(img: &Image, domain: Domain, p: Params) -> (Image, Image) {
-    gate_metered(img, domain, p, &Meter::default()).expect("a run without a cancel")
+    gate_metered(img, domain, p, None, &Meter::default()).expect("a run without a cancel")
 }
 
-/// [`gate`] that ends with `Err(Cancelled)` between its passes once `meter` is cancelled.
+/// [`gate`] that ends with `Err(Cancelled)` between its passes once `meter` is cancelled, with
+/// every pixel's reliability raised to at least `at_least`'s (one channel) when one is given.
 pub fn gate_metered(
     img: &Image,
     domain: Domain,
     p: Params,
+    at_least: Option<&Image>,
     meter: &Meter,
 ) -> Result<(Image, Image)> {
     let filled;
@@ -126,6 +128,8 @@ pub fn gate_metered(
         .par_iter()
         .zip(&noise)
         .map(|(&s, &n)| (s + EPS) / (s + p.pair_noise * n + EPS))
+        .zip(0..w * h)
+        .map(|(r, i)| at_least.map_or(r, |f| r.max(f.data()[i] as f64)))
         .collect();
     // The raw planes without their margins, copied a row at a time.
     let raw: Vec<Vec<f64>> = src

@@ -12,6 +12,8 @@
 //! walks, à-trous, fit) then sees a buffer that differs between two pixels only where the surface
 //! does: a feature's say in the pixel difference follows its reliability, with no kernel changed.
 //! The reliability of each gated feature is kept as `<feature>_reliability` (for `--save-buffer`).
+//! With `albedo_by_geometry` the albedo's reliability is at least the geometry's: texture coverage
+//! on clean geometry (mortar) keeps guiding, while fog mixes the normal too and stays gated.
 //!
 //! ```toml
 //! [[stage]]
@@ -19,6 +21,7 @@
 //! features = ["albedo", "normal", "depth"]   # gated, each in place
 //! radius = 3                                 # window of the variances, (2·3+1)²
 //! centre = "mean"                            # or "median"
+//! albedo_by_geometry = true                  # the albedo's reliability at least the geometry's
 //! ```
 //! A listed feature the render set does not have is skipped with a note.
 
@@ -35,6 +38,7 @@ use serde::{Deserialize, Serialize};
 use crate::buffers::Buffers;
 use crate::error::{Error, Result};
 use crate::filters::stage::{feature_list, parse_params, Context, Stage, StageIo};
+use crate::image::Image;
 use crate::render_set::Feature;
 
 /// Largest window radius.
@@ -53,6 +57,13 @@ pub struct ReliabilityParams {
     /// mix of medium and surface becomes its proportion, as the reference does), or `median`, the
     /// window's median (the mix becomes its majority, in blotches).
     pub centre: Centre,
+    /// The albedo is trusted at least as far as the geometry is, pixel by pixel: ρ_albedo at least
+    /// the smaller of ρ_normal and ρ_depth (those of them gated here). Where the geometry is clean
+    /// the pixel sees one surface, and its albedo's few-sample noise is the coverage of that
+    /// surface's texture (a brick wall's mortar), which the colour shares; a per-sample mix of
+    /// medium and surface (fog) or of two depths (defocus, motion) makes the geometry as noisy as
+    /// the albedo, and the gate stays.
+    pub albedo_by_geometry: bool,
 }
 
 impl Default for ReliabilityParams {
@@ -61,6 +72,7 @@ impl Default for ReliabilityParams {
             features: vec!["albedo".into(), "normal".into(), "depth".into()],
             radius: 3,
             centre: Centre::Mean,
+            albedo_by_geometry: false,
         }
     }
 }
@@ -132,7 +144,14 @@ impl Stage for ReliabilityStage {
 
     fn execute_impl(&self, buffers: &mut Buffers, ctx: &mut Context) -> Result<u64> {
         let p = self.params.kernel_params();
-        for &feature in &self.features {
+        // The geometry first when the albedo's floor is its reliability (each feature reads only its
+        // own raw buffer, so the order changes nothing else).
+        let mut order = self.features.clone();
+        if self.params.albedo_by_geometry {
+            order.sort_by_key(|&f| f == Feature::Albedo);
+        }
+        let mut geometry: Option<Image> = None;
+        for feature in order {
             ctx.meter.check()?;
             let Some(img) = buffers.features().get(feature) else {
                 ctx.note(format!(
@@ -147,7 +166,21 @@ impl Stage for ReliabilityStage {
                 Feature::Depth => Domain::Log,
                 Feature::Albedo | Feature::Material | Feature::Shadow => Domain::Linear,
             };
-            let (gated, rho) = gate_metered(img, domain, p, &ctx.meter)?;
+            let floor = match feature {
+                Feature::Albedo if self.params.albedo_by_geometry => geometry.as_ref(),
+                _ => None,
+            };
+            let (gated, rho) = gate_metered(img, domain, p, floor, &ctx.meter)?;
+            if matches!(feature, Feature::Normal | Feature::Depth) && self.params.albedo_by_geometry
+            {
+                // The geometry is as reliable as its least reliable buffer.
+                geometry = Some(match geometry.take() {
+                    None => rho.clone(),
+                    Some(g) => Image::from_fn(g.width(), g.height(), 1, |x, y, _| {
+                        g.at(x, y)[0].min(rho.at(x, y)[0])
+                    }),
+                });
+            }
             buffers.insert(feature.name(), gated)?;
             buffers.insert(reliability_name(feature), rho)?;
         }
