@@ -1,9 +1,11 @@
 //! Highlights the clamp took (issue 41, "never worse than the 64 spp input"): on a clean render a
 //! smooth bright highlight two pixels wide keeps its peak through `full` (the `spread` stage's
 //! `highlights` test gives the clamp's light back in place), while a lone firefly is still clamped.
+//! On a `--temporal` frame (a variance measured from the stack) the test is `stack_highlights`'s,
+//! off unless set: a pair passed on one frame and clamped on the next flickers.
 
 use gsid::pipeline::PipelineSpec;
-use gsid::{Buffers, DenoiseOptions, Image};
+use gsid::{Buffers, DenoiseOptions, Feature, Image, RenderSet};
 use rand::rngs::Xoshiro256PlusPlus;
 use rand::{Rng, SeedableRng};
 
@@ -45,8 +47,15 @@ fn scene() -> Buffers {
 
 /// `full` on `b` on `threads` workers with `spread.highlights` at `alpha`.
 fn run(b: &Buffers, alpha: f64, threads: usize) -> Image {
+    run_with(b, &[("spread.highlights", alpha)], threads)
+}
+
+/// `full` on `b` on `threads` workers with the keys set as given.
+fn run_with(b: &Buffers, keys: &[(&str, f64)], threads: usize) -> Image {
     let mut spec = PipelineSpec::builtin("full").unwrap();
-    spec.set("spread.highlights", alpha.into()).unwrap();
+    for &(key, value) in keys {
+        spec.set(key, value.into()).unwrap();
+    }
     let mut options = DenoiseOptions::seeded(1);
     options.threads = Some(threads);
     spec.build()
@@ -82,4 +91,38 @@ fn a_smooth_highlight_keeps_its_peak_and_a_lone_firefly_is_still_clamped() {
     );
     // The same bits on one thread.
     assert_eq!(run(&b, 0.01, 1).data(), kept.data());
+}
+
+/// `scene()` as a `--temporal` frame: its variance (the noise's, SD²) measured from the stack.
+fn stacked() -> Buffers {
+    let b = scene();
+    let color = b.get("color").unwrap().clone();
+    let mut set = RenderSet::new(color)
+        .with(Feature::Albedo, b.get("albedo").unwrap().clone())
+        .unwrap()
+        .with(Feature::Normal, b.get("normal").unwrap().clone())
+        .unwrap();
+    set.noise.variance = Some(Image::filled(W, H, 3, SD * SD));
+    set.noise.from_stack = true;
+    Buffers::from(set)
+}
+
+#[test]
+fn a_stacked_frame_takes_the_stack_key_and_keeps_nothing_unless_it_is_set() {
+    let b = stacked();
+    let peak_in = at(b.get("color").unwrap(), PEAK);
+    // `full`'s own keys: `highlights` 0.01, `stack_highlights` unset (off) — the peak is clamped.
+    let preset = run_with(&b, &[], 2);
+    assert!(
+        at(&preset, PEAK) < 0.7 * peak_in,
+        "peak on a stacked frame {} against the input's {peak_in}",
+        at(&preset, PEAK)
+    );
+    // The stack's own key turned on gives it back, as `highlights` does on a single frame.
+    let kept = run_with(&b, &[("spread.stack_highlights", 0.01)], 2);
+    assert!(
+        (at(&kept, PEAK) / peak_in - 1.0).abs() < 0.1,
+        "peak with stack_highlights {} against the input's {peak_in}",
+        at(&kept, PEAK)
+    );
 }

@@ -76,9 +76,16 @@ fn the_blend_noise_levels_are_quantiles() {
     }
 }
 
-/// The spread's highlight test takes a significance level: off at 0, at most one half.
+/// The spread's highlight test takes a significance level, on a single frame and on a stacked
+/// one: off at 0, at most one half.
 #[test]
 fn the_spread_highlights_is_a_significance_level() {
+    for key in ["highlights", "stack_highlights"] {
+        significance_level(key);
+    }
+}
+
+fn significance_level(key: &str) {
     for (value, ok) in [
         ("-0.01", false),
         ("0.6", false),
@@ -87,14 +94,13 @@ fn the_spread_highlights_is_a_significance_level() {
         ("0.05", true),
     ] {
         let mut spec = PipelineSpec::builtin("full").unwrap();
-        spec.apply_set(&format!("spread.highlights={value}"))
-            .unwrap();
+        spec.apply_set(&format!("spread.{key}={value}")).unwrap();
         match spec.build() {
             Ok(_) => assert!(ok, "{value} accepted"),
             Err(e) => {
                 let err = e.to_string();
                 assert!(
-                    !ok && err.contains("spread.highlights") && err.contains("0 (off) to 0.5"),
+                    !ok && err.contains(&format!("spread.{key}")) && err.contains("0 (off) to 0.5"),
                     "{value}: {err}"
                 );
             }

@@ -20,6 +20,7 @@
 //! radius = 15
 //! cap = 0.5
 //! highlights = 0.01        # significance level of the highlight test (`highlight`; 0: off)
+//! stack_highlights = 0.0   # the same on a `--temporal` frame (variance measured from the stack)
 //! ```
 //!
 //! With `highlights` above 0, a flagged pixel the `highlight` test calls a highlight (it touches
@@ -57,6 +58,10 @@ pub struct SpreadParams {
     /// Significance level of the highlight test: flagged pixels that touch, where the image's share
     /// of flagged pixels makes that rarer than this by chance, get their light back in place. 0: off.
     pub highlights: f64,
+    /// `highlights` on a frame merged from a shot's frames (`--temporal`): a pair the test passes
+    /// on one frame and not the next is given back on one and clamped on the other, which a
+    /// shot shows as flicker. 0: off.
+    pub stack_highlights: f64,
 }
 
 impl Default for SpreadParams {
@@ -69,6 +74,7 @@ impl Default for SpreadParams {
             albedo_tol: 0.1,
             normal_tol: 0.05,
             highlights: 0.0,
+            stack_highlights: 0.0,
         }
     }
 }
@@ -90,12 +96,13 @@ impl SpreadParams {
                 return Err(Error::range(key, value, range));
             }
         }
-        if !(0.0..=0.5).contains(&self.highlights) {
-            return Err(Error::range(
-                "highlights",
-                self.highlights,
-                "0 (off) to 0.5",
-            ));
+        for (key, value) in [
+            ("highlights", self.highlights),
+            ("stack_highlights", self.stack_highlights),
+        ] {
+            if !(0.0..=0.5).contains(&value) {
+                return Err(Error::range(key, value, "0 (off) to 0.5"));
+            }
         }
         for (key, name) in [("light", &self.light), ("noise", &self.noise)] {
             if name.is_empty() {
@@ -153,7 +160,11 @@ impl Stage for SpreadStage {
             normal: buffers.features().get(Feature::Normal),
         };
         let mut out = filtered.par_clone();
-        let given = spread_light(&mut out, light, variance, &guides, &self.params, &ctx.meter);
+        let mut params = self.params.clone();
+        if buffers.variance_from_stack() {
+            params.highlights = params.stack_highlights;
+        }
+        let given = spread_light(&mut out, light, variance, &guides, &params, &ctx.meter);
         ctx.meter.check()?;
         if given.removed > 0.0 {
             ctx.note(format!(
