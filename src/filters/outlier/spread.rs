@@ -21,6 +21,7 @@
 //! cap = 0.5
 //! highlights = 0.01        # significance level of the highlight test (`highlight`; 0: off)
 //! stack_highlights = 0.0   # the same on a `--temporal` frame (variance measured from the stack)
+//! conserve = false         # each spike's light over its own surface's pixels, none lost to others
 //! ```
 //!
 //! With `highlights` above 0, a flagged pixel the `highlight` test calls a highlight (it touches
@@ -62,6 +63,10 @@ pub struct SpreadParams {
     /// on one frame and not the next is given back on one and clamped on the other, which a
     /// shot shows as flicker. 0: off.
     pub stack_highlights: f64,
+    /// Each spike's light shared over its own surface's pixels in its window (its shares sum to
+    /// one), not at a flat surface's density with what falls on other surfaces lost; the cap still
+    /// bounds what any pixel takes.
+    pub conserve: bool,
 }
 
 impl Default for SpreadParams {
@@ -75,6 +80,7 @@ impl Default for SpreadParams {
             normal_tol: 0.05,
             highlights: 0.0,
             stack_highlights: 0.0,
+            conserve: false,
         }
     }
 }
@@ -190,6 +196,8 @@ pub struct Given {
 struct Source {
     x: usize,
     light: [f64; 3],
+    /// The light it lost, summed over channels.
+    total: f64,
 }
 
 /// Adds to `out` the light of `light` (nonzero where the clamp took some), shared among each
@@ -242,18 +250,25 @@ pub fn spread_light(
                 .filter(|&x| !kept[y * w + x])
                 .filter_map(|x| {
                     let l = light.pixel(y * w + x);
-                    let light: [f64; 3] = std::array::from_fn(|k| positive(l[k]) / area);
-                    (!light.iter().all(|&v| v == 0.0)).then_some(Source { x, light })
+                    if l.iter().all(|&v| positive(v) == 0.0) {
+                        return None;
+                    }
+                    let share = if params.conserve {
+                        own_surface(guides, (ka, kn), (x, y), (w, h), r, (&far, &bump))
+                    } else {
+                        area
+                    };
+                    let light: [f64; 3] = std::array::from_fn(|k| positive(l[k]) / share);
+                    (share > 0.0 && !light.iter().all(|&v| v == 0.0)).then_some(Source {
+                        x,
+                        light,
+                        total: l.iter().map(|&v| positive(v)).sum(),
+                    })
                 })
                 .collect()
         })
         .collect();
-    let removed: f64 = area
-        * sources
-            .iter()
-            .flatten()
-            .map(|s| s.light.iter().sum::<f64>())
-            .sum::<f64>();
+    let removed: f64 = sources.iter().flatten().map(|s| s.total).sum::<f64>();
     if removed == 0.0 {
         return Given {
             removed: in_place,
@@ -331,6 +346,39 @@ pub fn spread_light(
         removed: removed + in_place,
         returned: returned + in_place,
     }
+}
+
+/// The sum of the shares source (x, y) gives its window's pixels (the bump times the surface
+/// weight, the spike itself and the cells the receiving loop skips left out), so that light
+/// divided by it is given back whole before the cap.
+fn own_surface(
+    guides: &Guides,
+    k: (f32, f32),
+    (x, y): (usize, usize),
+    (w, h): (usize, usize),
+    r: usize,
+    (far, bump): (&[f32], &[f64]),
+) -> f64 {
+    let side = 2 * r + 1;
+    let (x0, x1) = (x.saturating_sub(r), (x + r + 1).min(w));
+    let mut unlike = vec![0.0f32; x1 - x0];
+    let mut mass = 0.0f64;
+    for ry in y.saturating_sub(r)..(y + r + 1).min(h) {
+        row_unlike(guides, k, y * w + x, ry * w + x0, &mut unlike);
+        let at = (ry + r - y) * side + (x0 + r - x);
+        for (t, &u) in unlike.iter().enumerate() {
+            let e = far[at + t] + u;
+            if (ry == y && x0 + t == x) || e.is_nan() || e > 18.0 {
+                continue;
+            }
+            mass += if u > 0.0 {
+                bump[at + t] * (-u).exp() as f64
+            } else {
+                bump[at + t]
+            };
+        }
+    }
+    mass
 }
 
 /// −ln of the surface weight exp(−½(Δalbedo/tol)² − ½(Δnormal/tol)²) of source pixel `i` to each
@@ -467,6 +515,51 @@ mod tests {
         let most = out.data().iter().fold(0.0f32, |m, &v| m.max(v));
         assert!((most - 0.25).abs() < 1e-6, "{most}");
         assert!(given.returned < given.removed, "{given:?}");
+    }
+
+    /// A spike on a sliver of surface three pixels wide: at a flat surface's density most of its
+    /// light would fall on the other surface and be lost; with `conserve` it all comes back, on
+    /// the sliver.
+    #[test]
+    fn conserve_gives_a_sliver_its_whole_light() {
+        let albedo = Image::from_fn(
+            31,
+            31,
+            3,
+            |x, _, _| {
+                if (14..=16).contains(&x) {
+                    0.8
+                } else {
+                    0.2
+                }
+            },
+        );
+        let guides = Guides {
+            albedo: Some(&albedo),
+            normal: None,
+        };
+        for conserve in [false, true] {
+            let (mut out, light, variance) = one_source(9.0);
+            let p = SpreadParams {
+                cap: 1e6,
+                conserve,
+                ..SpreadParams::default()
+            };
+            let given = spread_light(&mut out, &light, &variance, &guides, &p, &Meter::default());
+            let off: f64 = (0..31 * 31)
+                .filter(|i| !(14..=16).contains(&(i % 31)))
+                .map(|i| (out.pixel(i)[0] - 0.2) as f64)
+                .sum();
+            let share = given.returned / given.removed;
+            if conserve {
+                assert!(
+                    (share - 1.0).abs() < 1e-9 && off.abs() < 1e-3,
+                    "{share} {off}"
+                );
+            } else {
+                assert!(share < 0.5, "{share}");
+            }
+        }
     }
 
     #[test]
