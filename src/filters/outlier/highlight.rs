@@ -39,6 +39,9 @@ pub fn chance_of_a_neighbour(p: f64) -> f64 {
 /// flagged pixels makes that less likely than `alpha` by chance. All false when `alpha` is 0.
 pub fn highlights(light: &Image, alpha: f64) -> Vec<bool> {
     let (w, h) = light.dims();
+    if alpha <= 0.0 {
+        return vec![false; w * h];
+    }
     let flags = flagged(light);
     let n = flags.len();
     let count = flags.iter().filter(|&&f| f).count();

@@ -246,23 +246,26 @@ pub fn spread_light(
     let sources: Vec<Vec<Source>> = (0..h)
         .into_par_iter()
         .map(|y| {
+            let mut unlike = Vec::new();
             (0..w)
                 .filter(|&x| !kept[y * w + x])
                 .filter_map(|x| {
                     let l = light.pixel(y * w + x);
-                    if l.iter().all(|&v| positive(v) == 0.0) {
+                    let lost: [f64; 3] = std::array::from_fn(|k| positive(l[k]));
+                    if lost == [0.0; 3] {
                         return None;
                     }
                     let share = if params.conserve {
-                        own_surface(guides, (ka, kn), (x, y), (w, h), r, (&far, &bump))
+                        let window = ((x, y), (w, h), r);
+                        own_surface(guides, (ka, kn), window, (&far, &bump), &mut unlike)
                     } else {
                         area
                     };
-                    let light: [f64; 3] = std::array::from_fn(|k| positive(l[k]) / share);
-                    (share > 0.0 && !light.iter().all(|&v| v == 0.0)).then_some(Source {
+                    let light = lost.map(|v| v / share);
+                    (share > 0.0 && light != [0.0; 3]).then_some(Source {
                         x,
                         light,
-                        total: l.iter().map(|&v| positive(v)).sum(),
+                        total: lost.iter().sum(),
                     })
                 })
                 .collect()
@@ -309,16 +312,8 @@ pub fn spread_light(
                             .zip(unlike.iter())
                             .zip(far.iter().zip(bump));
                         for (t, ((gain, &u), (&far, &bump))) in cells.enumerate() {
-                            // Below exp(−18) a share is nothing worth its exponential; one surface
-                            // (u = 0) needs none; a feature that is not a number shares nothing.
-                            let e = far + u;
-                            if t == spike || e.is_nan() || e > 18.0 {
+                            let Some(share) = share_of(far, bump, u).filter(|_| t != spike) else {
                                 continue;
-                            }
-                            let share = if u > 0.0 {
-                                bump * (-u).exp() as f64
-                            } else {
-                                bump
                             };
                             for (g, l) in gain.iter_mut().zip(s.light) {
                                 *g += share * l;
@@ -350,35 +345,46 @@ pub fn spread_light(
 
 /// The sum of the shares source (x, y) gives its window's pixels (the bump times the surface
 /// weight, the spike itself and the cells the receiving loop skips left out), so that light
-/// divided by it is given back whole before the cap.
+/// divided by it is given back whole before the cap. `unlike` is scratch space.
 fn own_surface(
     guides: &Guides,
     k: (f32, f32),
-    (x, y): (usize, usize),
-    (w, h): (usize, usize),
-    r: usize,
+    ((x, y), (w, h), r): ((usize, usize), (usize, usize), usize),
     (far, bump): (&[f32], &[f64]),
+    unlike: &mut Vec<f32>,
 ) -> f64 {
     let side = 2 * r + 1;
     let (x0, x1) = (x.saturating_sub(r), (x + r + 1).min(w));
-    let mut unlike = vec![0.0f32; x1 - x0];
+    unlike.resize(side, 0.0);
+    let unlike = &mut unlike[..x1 - x0];
     let mut mass = 0.0f64;
     for ry in y.saturating_sub(r)..(y + r + 1).min(h) {
-        row_unlike(guides, k, y * w + x, ry * w + x0, &mut unlike);
+        row_unlike(guides, k, y * w + x, ry * w + x0, unlike);
         let at = (ry + r - y) * side + (x0 + r - x);
         for (t, &u) in unlike.iter().enumerate() {
-            let e = far[at + t] + u;
-            if (ry == y && x0 + t == x) || e.is_nan() || e > 18.0 {
+            if ry == y && x0 + t == x {
                 continue;
             }
-            mass += if u > 0.0 {
-                bump[at + t] * (-u).exp() as f64
-            } else {
-                bump[at + t]
-            };
+            mass += share_of(far[at + t], bump[at + t], u).unwrap_or(0.0);
         }
     }
     mass
+}
+
+/// The share of a source's light one cell takes: the bump there (−ln `far`, value `bump`) times
+/// the surface weight exp(−`u`). None below exp(−18), a share worth no exponential, and where a
+/// feature is not a number (it shares nothing); one surface (`u` 0) needs no exponential.
+#[inline(always)]
+fn share_of(far: f32, bump: f64, u: f32) -> Option<f64> {
+    let e = far + u;
+    if e.is_nan() || e > 18.0 {
+        return None;
+    }
+    Some(if u > 0.0 {
+        bump * (-u).exp() as f64
+    } else {
+        bump
+    })
 }
 
 /// −ln of the surface weight exp(−½(Δalbedo/tol)² − ½(Δnormal/tol)²) of source pixel `i` to each
