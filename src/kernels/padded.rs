@@ -15,6 +15,16 @@ pub(crate) enum Margin {
     Edge,
 }
 
+/// `src` into `line` with `margin` copies of its first and last values before and after it (as
+/// `Margin::Edge` does for a whole plane), so each tap of a 1-D window along the row is one shifted
+/// slice `line[d..d + src.len()]`. `line` is a reused buffer; `src` is not empty.
+pub(crate) fn edge_padded_line<T: Copy>(line: &mut Vec<T>, src: &[T], margin: usize) {
+    line.clear();
+    line.extend(std::iter::repeat_n(src[0], margin));
+    line.extend_from_slice(src);
+    line.extend(std::iter::repeat_n(src[src.len() - 1], margin));
+}
+
 /// `planes` planes of a `w`×`h` image, each `(w + 2m) × (h + 2m)` for a margin m.
 pub(crate) struct Padded {
     pub(crate) planes: Vec<Vec<f64>>,

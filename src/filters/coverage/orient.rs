@@ -9,6 +9,7 @@
 use rayon::prelude::*;
 
 use crate::image::{par_vec, Image};
+use crate::kernels::padded::edge_padded_line;
 use crate::render_set::{Feature, FeatureSet};
 
 /// σ, in pixels, of the Gaussian the tensor is summed with.
@@ -187,10 +188,7 @@ fn gaussian(v: &[[f32; 3]], w: usize, h: usize, sigma: f32) -> Vec<[f32; 3]> {
         .enumerate()
         .for_each_init(Vec::new, |line, (y, out)| {
             let src = &v[y * w..(y + 1) * w];
-            line.clear();
-            line.extend(std::iter::repeat_n(src[0], r));
-            line.extend_from_slice(src);
-            line.extend(std::iter::repeat_n(src[w - 1], r));
+            edge_padded_line(line, src, r);
             let out = out.as_flattened_mut();
             for (d, &t) in taps.iter().enumerate() {
                 let shifted = line[d..d + w].as_flattened();

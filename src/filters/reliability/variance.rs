@@ -5,7 +5,7 @@ use rayon::prelude::*;
 
 use crate::error::Result;
 use crate::image::par_vec;
-use crate::kernels::padded::Padded;
+use crate::kernels::padded::{edge_padded_line, Padded};
 use crate::meter::Meter;
 
 /// The four directions a pixel's noise is read along: horizontal, vertical, the two diagonals.
@@ -125,10 +125,7 @@ pub(super) fn box_mean(v: &[f64], (w, h): (usize, usize), radius: usize) -> Vec<
         .enumerate()
         .for_each_init(Vec::new, |line, (y, out)| {
             let src = &v[y * w..(y + 1) * w];
-            line.clear();
-            line.extend(std::iter::repeat_n(src[0], radius));
-            line.extend_from_slice(src);
-            line.extend(std::iter::repeat_n(src[w - 1], radius));
+            edge_padded_line(line, src, radius);
             for t in 0..=2 * radius {
                 for (o, &s) in out.iter_mut().zip(&line[t..t + w]) {
                     *o += s;
