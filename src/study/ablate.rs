@@ -95,61 +95,26 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
     // edges only the colour shows, each against none; an `outlier` stage's dark dots and a `blend`
     // stage's noise-level cap and a `spread` stage's highlights, where a pipeline turns them on,
     // against off.
+    type On<'a> = &'a dyn Fn(Option<&toml::Value>) -> bool;
     let unset_or = |want: toml::Value| move |v: Option<&toml::Value>| v.is_none_or(|v| *v == want);
-    out.extend(switched_variants(
-        spec,
-        ("reliability", "centre"),
-        (unset_or("mean".into()), "median".into()),
-        "with median centres",
-    )?);
-    out.extend(switched_variants(
-        spec,
-        ("reliability", "albedo_by_geometry"),
-        (
-            |v: Option<&toml::Value>| v == Some(&true.into()),
-            false.into(),
-        ),
-        "albedo without the geometry's floor",
-    )?);
-    out.extend(switched_variants(
-        spec,
-        ("coverage", "across"),
-        (unset_or(true.into()), false.into()),
-        "without the across-edge spread",
-    )?);
-    out.extend(switched_variants(
-        spec,
-        ("coverage", "colour"),
-        (unset_or(true.into()), false.into()),
-        "without the colour's own edges",
-    )?);
-    out.extend(switched_variants(
-        spec,
-        ("outlier", "two_sided"),
-        (
-            |v: Option<&toml::Value>| v == Some(&true.into()),
-            false.into(),
-        ),
-        "one-sided (dark dots kept)",
-    )?);
-    out.extend(switched_variants(
-        spec,
-        ("blend", "noise_level"),
-        (
-            |v: Option<&toml::Value>| v.and_then(toml::Value::as_float).is_some_and(|q| q > 0.0),
-            toml::Value::Float(0.0),
-        ),
-        "without the noise-level cap",
-    )?);
-    out.extend(switched_variants(
-        spec,
-        ("spread", "highlights"),
-        (
-            |v: Option<&toml::Value>| v.and_then(toml::Value::as_float).is_some_and(|a| a > 0.0),
-            toml::Value::Float(0.0),
-        ),
-        "without highlights kept",
-    )?);
+    let (mean_centre, unset_or_true) = (unset_or("mean".into()), unset_or(true.into()));
+    let set_true = |v: Option<&toml::Value>| v == Some(&true.into());
+    let positive =
+        |v: Option<&toml::Value>| v.and_then(toml::Value::as_float).is_some_and(|q| q > 0.0);
+    let off = toml::Value::Float(0.0);
+    #[rustfmt::skip]
+    let switches: [(&str, &str, On, toml::Value, &str); 7] = [
+        ("reliability", "centre", &mean_centre, "median".into(), "with median centres"),
+        ("reliability", "albedo_by_geometry", &set_true, false.into(), "albedo without the geometry's floor"),
+        ("coverage", "across", &unset_or_true, false.into(), "without the across-edge spread"),
+        ("coverage", "colour", &unset_or_true, false.into(), "without the colour's own edges"),
+        ("outlier", "two_sided", &set_true, false.into(), "one-sided (dark dots kept)"),
+        ("blend", "noise_level", &positive, off.clone(), "without the noise-level cap"),
+        ("spread", "highlights", &positive, off, "without highlights kept"),
+    ];
+    for (kind, key, on, other, label) in switches {
+        out.extend(switched_variants(spec, (kind, key), (on, other), label)?);
+    }
     out.extend(noise_variants(spec)?);
     let paths = feature_paths(spec);
     if !paths.is_empty() {
