@@ -58,21 +58,13 @@ fn out_of_range_factors_are_named() {
 
 #[test]
 fn the_blend_noise_levels_are_quantiles() {
-    for key in ["noise_level", "leak_level"] {
-        for value in ["-0.1", "1.5", "nan"] {
-            let mut spec = PipelineSpec::builtin("full").unwrap();
-            spec.apply_set(&format!("blend.{key}={value}")).unwrap();
-            let err = spec.build().err().expect("rejected").to_string();
-            assert!(
-                err.contains(&format!("blend.{key}")) && err.contains("0 (off) to 1"),
-                "{value}: {err}"
-            );
-        }
-        for value in ["0", "0.5", "1"] {
-            let mut spec = PipelineSpec::builtin("full").unwrap();
-            spec.apply_set(&format!("blend.{key}={value}")).unwrap();
-            assert!(spec.build().is_ok(), "{value}");
-        }
+    for key in ["blend.noise_level", "blend.leak_level"] {
+        assert_range(
+            key,
+            &["0", "0.5", "1"],
+            &["-0.1", "1.5", "nan"],
+            "0 (off) to 1",
+        );
     }
 }
 
@@ -80,31 +72,33 @@ fn the_blend_noise_levels_are_quantiles() {
 /// one: off at 0, at most one half.
 #[test]
 fn the_spread_highlights_is_a_significance_level() {
-    for key in ["highlights", "stack_highlights"] {
-        significance_level(key);
+    for key in ["spread.highlights", "spread.stack_highlights"] {
+        assert_range(
+            key,
+            &["0", "0.05"],
+            &["-0.01", "0.6", "nan"],
+            "0 (off) to 0.5",
+        );
     }
 }
 
-fn significance_level(key: &str) {
-    for (value, ok) in [
-        ("-0.01", false),
-        ("0.6", false),
-        ("nan", false),
-        ("0", true),
-        ("0.05", true),
-    ] {
+/// `full` with `key` set to each of `accepted` builds; to each of `rejected` it fails with an
+/// error that names the key and its `range`.
+fn assert_range(key: &str, accepted: &[&str], rejected: &[&str], range: &str) {
+    let build = |value: &str| {
         let mut spec = PipelineSpec::builtin("full").unwrap();
-        spec.apply_set(&format!("spread.{key}={value}")).unwrap();
-        match spec.build() {
-            Ok(_) => assert!(ok, "{value} accepted"),
-            Err(e) => {
-                let err = e.to_string();
-                assert!(
-                    !ok && err.contains(&format!("spread.{key}")) && err.contains("0 (off) to 0.5"),
-                    "{value}: {err}"
-                );
-            }
-        }
+        spec.apply_set(&format!("{key}={value}")).unwrap();
+        spec.build()
+    };
+    for value in rejected {
+        let err = build(value).err().expect("rejected").to_string();
+        assert!(
+            err.contains(key) && err.contains(range),
+            "{key} = {value}: {err}"
+        );
+    }
+    for value in accepted {
+        assert!(build(value).is_ok(), "{key} = {value}");
     }
 }
 
