@@ -163,3 +163,44 @@ fn white_noise_removed_is_not_handed_back() {
     let level = NoiseLevel::fit(&filtered, &variance, 0.75).unwrap();
     assert!(level.at(&[FLAT; 3]) < ((4.0 * STD).powi(2) / 4.0) as f64);
 }
+
+#[test]
+fn a_pixel_without_surface_mates_keeps_its_own_estimate() {
+    // The blurred band's edge pixel (22, 22) is of its own albedo: it has no surface-mate, its
+    // estimate is the noise stage's reading of its window alone (a chrome pixel showing the
+    // scene), and the image's level, fitted over surfaces, is not its noise.
+    let (color, filtered, variance) = blurred_band();
+    let lone = 22 * SIDE + 22;
+    let mut set = FeatureSet::default();
+    let albedo = Image::from_fn(
+        SIDE,
+        SIDE,
+        3,
+        |x, y, _| {
+            if y * SIDE + x == lone {
+                0.9
+            } else {
+                0.5
+            }
+        },
+    );
+    set.set(crate::render_set::Feature::Albedo, albedo).unwrap();
+    let keep = |q| {
+        keep_weights_metered(
+            Kernel::detect(),
+            (&color, &filtered, &variance),
+            &set,
+            (2.0, 4.0, q, 0.0),
+            &Meter::default(),
+        )
+    };
+    let (off, on) = (keep(0.0), keep(0.75));
+    assert_eq!(off[lone], on[lone], "the lone pixel");
+    assert!(
+        on[lone] > 0.5,
+        "its estimate explains the change: {}",
+        on[lone]
+    );
+    // Its neighbours along the edge still come back.
+    assert!(on[23 * SIDE + 22] < 0.1 && on[21 * SIDE + 22] < 0.1);
+}

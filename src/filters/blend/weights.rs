@@ -5,6 +5,7 @@ use rayon::prelude::*;
 
 use super::error_estimate::{blend_error_row, trimmed_chi2, BLEND_RADIUS};
 use super::noise_level::{leak_variance, tested_variance, NoiseLevel};
+use crate::filters::noise::from_image::MIN_MATES;
 use crate::filters::noise::measured::pixel_variance;
 use crate::filters::noise::surface::{Mates, Surface};
 use crate::image::{par_vec, Image};
@@ -88,9 +89,12 @@ pub fn keep_weights_metered(
             for (x, (keep, &(err, n))) in keep.iter_mut().zip(row.iter()).enumerate() {
                 let i = y * w + x;
                 let var = pixel_variance(&v[3 * i..3 * i + 3]);
+                // A pixel with few surface-mates has the noise stage's estimate of a lone pixel
+                // (its window's adjacent pairs, one direction's across an edge), which reads
+                // structure less: the image's level, fitted on surfaces, is not its noise.
                 let tested = match &level {
-                    Some(level) => tested_variance(level, (c, f), (w, h), (x, y), var),
-                    None => var,
+                    Some(level) if n >= MIN_MATES => tested_variance(level, (c, f), (w, h), (x, y), var),
+                    _ => var,
                 };
                 let (ci, fi) = (&c[3 * i..3 * i + 3], &f[3 * i..3 * i + 3]);
                 let leak_var = match &leak_cap {

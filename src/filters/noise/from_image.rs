@@ -5,7 +5,7 @@
 use rayon::prelude::*;
 
 use super::chi2::{TRIM, TRIMMED_CHI2_MEAN};
-use super::smooth::{smooth, SMOOTH_RADIUS};
+use super::smooth::{plain_spread, smooth, SMOOTH_RADIUS};
 use super::surface::{Mates, Surface};
 use crate::image::{par_vec, Image};
 use crate::kernels::padded::{Margin, Padded};
@@ -17,7 +17,7 @@ use crate::render_set::FeatureSet;
 /// Radius of the window of the raw estimate (5×5): the adjacent pairs are `trim::PAIRS`.
 const RAW_RADIUS: isize = trim::RADIUS;
 /// Fewest surface-mates (the pixel included) a raw estimate needs.
-const MIN_MATES: usize = 4;
+pub(crate) const MIN_MATES: usize = 4;
 
 /// Estimates the variance of every pixel's colour mean (RGB) from the colour and the features.
 ///
@@ -26,7 +26,8 @@ const MIN_MATES: usize = 4;
 /// the local mean is noise; bringing each neighbour to the pixel's own albedo first keeps texture
 /// out of it. Raw estimates from one 5×5 window are themselves noisy, so they are averaged over a
 /// 7×7 window of the same surface, weighted by their degrees of freedom. A pixel that finds no
-/// surface-mates (a lone pixel, a 1×1 image) takes the plain 3×3 spread, or 0 when it has none.
+/// surface-mates reads the adjacent pairs of its whole 5×5 window; one whose samples hit nothing
+/// (no normal) or without pairs (a 1×1 image) takes the plain 3×3 spread, or 0 when it has none.
 pub fn estimate(color: &Image, features: &FeatureSet) -> Image {
     estimate_with(Kernel::detect(), color, features)
 }
@@ -102,16 +103,41 @@ fn estimate_in(kernel: Kernel, color: &Image, features: &FeatureSet, meter: &Met
     for (&i, (v, n)) in alone.iter().zip(own) {
         (sums[i], dof[i]) = (v, degrees(n));
     }
-    // The padded colour is not read again: its memory is free before the smoothed image's.
-    drop(flat);
     if meter.cancelled() {
         return Image::new(w, h, 3);
     }
+    // A pixel with no surface-mate (a chrome pixel showing the scene, a lone texel) reads the
+    // adjacent pairs of its whole 5×5 window, demodulated, one direction's where the other's
+    // cross an edge: structure the features do not show enters less than in the colours' spread.
+    // Untrimmed: with no surface to pool over, its tails are its noise too.
+    let side = mates.side;
+    let lone = |i: usize| {
+        let (x, y) = (i % w, i / w);
+        let c = (side / 2) as isize;
+        let mut bits = 0u64;
+        for dy in -c..=c {
+            for dx in -c..=c {
+                let (px, py) = (x as isize + dx, y as isize + dy);
+                if (0..w as isize).contains(&px) && (0..h as isize).contains(&py) {
+                    bits |= 1 << ((dy + c) * side as isize + dx + c);
+                }
+            }
+        }
+        let [(v, n)] = pair_spread_of::<1>(&flat, side, [bits], window, x, y, false);
+        // A pixel whose samples hit nothing (beside a floor's edge at one sample) has no albedo
+        // to bring the demodulated variance to: its colour is what few samples hit.
+        if n == 0 || !surface.hit(i) {
+            return plain_spread(color, i);
+        }
+        let s = surface.scale(i);
+        std::array::from_fn(|k| v[k] * s[k] * s[k])
+    };
     smooth(
         color,
         &surface,
         &mates,
         |j| (sums[j], dof[j] as usize),
+        lone,
         meter,
     )
 }
@@ -170,7 +196,21 @@ fn pair_spread<const L: usize>(
 ) -> [([f64; 3], usize); L] {
     let mut bits = [0u64; L];
     bits.copy_from_slice(&mates.bits[y * w + x..y * w + x + L]);
-    let (side, c) = (mates.side as isize, (mates.side / 2) as isize);
+    pair_spread_of(flat, mates.side, bits, window, x, y, true)
+}
+
+/// [`pair_spread`] with the mates given as bits of a window of `side`.
+#[inline(always)]
+fn pair_spread_of<const L: usize>(
+    flat: &Padded,
+    side: usize,
+    bits: [u64; L],
+    window: u64,
+    x: usize,
+    y: usize,
+    trimmed: bool,
+) -> [([f64; 3], usize); L] {
+    let (side, c) = (side as isize, (side / 2) as isize);
     let bit = |(dx, dy): (isize, isize)| ((dy + c) * side + dx + c) as u32;
     // Per direction (0 horizontal, 1 vertical), its pairs in `PAIRS` order; a pair that is not
     // of surface-mates reads NaN, which the trimmed means leave out.
@@ -210,16 +250,42 @@ fn pair_spread<const L: usize>(
         // copy of the row function.
         let h = trim::lanes::<L, DIRECTION_PAIRS, DIRECTION_TRIMMED>(&d2[0], dropped[0]);
         let v = trim::lanes::<L, DIRECTION_PAIRS, DIRECTION_TRIMMED>(&d2[1], dropped[1]);
+        // Untrimmed, each direction's mean of all its pairs: the variance with its tails.
+        let all = (!trimmed).then(|| {
+            let none = [0usize; L];
+            (
+                trim::lanes::<L, DIRECTION_PAIRS, DIRECTION_TRIMMED>(&d2[0], none),
+                trim::lanes::<L, DIRECTION_PAIRS, DIRECTION_TRIMMED>(&d2[1], none),
+            )
+        });
         for l in 0..L {
             let (lo, hi) = (h[l].min(v[l]), h[l].max(v[l]));
             let both = kept[0][l] >= MIN_DIRECTION_PAIRS && kept[1][l] >= MIN_DIRECTION_PAIRS;
-            let (kh, kv) = (kept[0][l] as f64, kept[1][l] as f64);
-            let mean = if both && hi > DIRECTIONAL_RATIO * lo {
-                lo
-            } else {
-                (h[l] * kh + v[l] * kv) / (kh + kv).max(1.0)
+            let one = both && hi > DIRECTIONAL_RATIO * lo;
+            out[l].0[k] = match all {
+                None => {
+                    let (kh, kv) = (kept[0][l] as f64, kept[1][l] as f64);
+                    let mean = if one {
+                        lo
+                    } else {
+                        (h[l] * kh + v[l] * kv) / (kh + kv).max(1.0)
+                    };
+                    mean / (2.0 * TRIMMED_CHI2_MEAN)
+                }
+                Some((ha, va)) => {
+                    let (nh, nv) = (n[0][l] as f64, n[1][l] as f64);
+                    let mean = if one {
+                        if h[l] <= v[l] {
+                            ha[l]
+                        } else {
+                            va[l]
+                        }
+                    } else {
+                        (ha[l] * nh + va[l] * nv) / (nh + nv).max(1.0)
+                    };
+                    mean / 2.0
+                }
             };
-            out[l].0[k] = mean / (2.0 * TRIMMED_CHI2_MEAN);
         }
     }
     for (l, (var, pairs)) in out.iter_mut().enumerate() {
@@ -272,6 +338,57 @@ pub(crate) mod tests {
                 "line on row {line}: estimate / truth {median}"
             );
         }
+    }
+
+    /// A pixel of its own albedo (no surface-mate) beside an edge the features do not show (a
+    /// shadow's): the plain spread of its 3×3 colours reads the edge as noise, many times its
+    /// own; its window's adjacent pairs along the edge read the noise.
+    #[test]
+    fn a_lone_pixel_beside_an_edge_reads_its_noise() {
+        let (w, h, std) = (32, 32, 0.1f32);
+        let (lx, ly) = (15, 16);
+        let lone = |x: usize, y: usize| (x, y) == (lx, ly);
+        let noise = noisy_flat(w, h, 0.0, std, 11);
+        let albedo = Image::from_fn(w, h, 3, |x, y, _| if lone(x, y) { 0.9 } else { 0.5 });
+        // Light 0.4 left of the edge, 2.0 right of it; the noise in proportion to the albedo.
+        let color = Image::from_fn(w, h, 3, |x, y, k| {
+            let light = if x < 16 { 0.4 } else { 2.0 };
+            albedo.at(x, y)[k] * (light + noise.at(x, y)[k])
+        });
+        let mut set = FeatureSet::default();
+        set.set(Feature::Albedo, albedo).unwrap();
+        let est = estimate(&color, &set);
+        let truth = (0.9 * std).powi(2);
+        let ratio = est.at(lx, ly)[0] / truth;
+        assert!(
+            (0.25..4.0).contains(&ratio),
+            "the lone pixel reads {ratio:.2}× its noise"
+        );
+    }
+
+    /// A pixel whose one sample missed, inside a lit floor: it has no albedo to bring a
+    /// demodulated variance to (bringing it to black reads nothing), and keeps the plain spread
+    /// of its colours, which its coverage noise is.
+    #[test]
+    fn a_pixel_that_hit_nothing_reads_its_colours() {
+        let (w, h, std) = (16, 16, 0.03f32);
+        let (hx, hy) = (7, 8);
+        let hole = |x: usize, y: usize| (x, y) == (hx, hy);
+        let noise = noisy_flat(w, h, 0.0, std, 12);
+        let on_floor = |x, y, v: f32| if hole(x, y) { 0.0 } else { v };
+        let mut set = FeatureSet::default();
+        let albedo = Image::from_fn(w, h, 3, |x, y, _| on_floor(x, y, 0.6));
+        let normal = Image::from_fn(w, h, 3, |x, y, k| on_floor(x, y, (k == 1) as u8 as f32));
+        set.set(Feature::Albedo, albedo).unwrap();
+        set.set(Feature::Normal, normal).unwrap();
+        let color = Image::from_fn(w, h, 3, |x, y, k| on_floor(x, y, 0.3 + noise.at(x, y)[k]));
+        let est = estimate(&color, &set);
+        let floor = est.at(3, 3)[0];
+        assert!(
+            est.at(hx, hy)[0] > floor,
+            "the hole reads {:.2e}, the floor {floor:.2e}",
+            est.at(hx, hy)[0]
+        );
     }
 
     pub(crate) fn noisy_flat(w: usize, h: usize, level: f32, std: f32, seed: u64) -> Image {

@@ -1,7 +1,7 @@
 //! The noise the renderer measured, smoothed over the same surface as the estimate is: from its
 //! variance buffer, or from the half-sample colours `color_a`/`color_b`.
 
-use super::smooth::{smooth, SMOOTH_RADIUS};
+use super::smooth::{plain_spread, smooth, SMOOTH_RADIUS};
 use super::surface::Surface;
 use crate::image::Image;
 use crate::meter::Meter;
@@ -52,6 +52,7 @@ fn smooth_measured_raw(color: &Image, surface: &Surface, raw: &[([f64; 3], usize
         surface,
         &surface.mates(w, h, SMOOTH_RADIUS as usize),
         |j| raw[j],
+        |i| plain_spread(color, i),
         &Meter::default(),
     )
 }

@@ -32,17 +32,32 @@ fn spread(color: &[f32], members: &[usize]) -> ([f64; 3], usize) {
     (var, n - 1)
 }
 
+/// The plain 3×3 spread of the colours around pixel `i`: the variance of a pixel with no
+/// surface-mate when nothing better is known.
+pub(super) fn plain_spread(color: &Image, i: usize) -> [f64; 3] {
+    let (w, h) = color.dims();
+    let (x, y) = (i % w, i / w);
+    let mut near = [0usize; 9];
+    let mut n = 0;
+    for j in window(x, y, w, h, 1) {
+        near[n] = j;
+        n += 1;
+    }
+    spread(color.data(), &near[..n]).0
+}
+
 /// Averages raw per-pixel estimates (demodulated variance, degrees of freedom; 0 = none) over the
-/// same surface, and brings the result to each pixel's albedo.
+/// same surface, and brings the result to each pixel's albedo; a pixel none of whose mates has a
+/// raw estimate takes `lone`'s variance.
 pub(super) fn smooth(
     color: &Image,
     surface: &Surface,
     mates: &Mates,
     raw: impl Fn(usize) -> ([f64; 3], usize) + Sync,
+    lone: impl Fn(usize) -> [f64; 3] + Sync,
     meter: &Meter,
 ) -> Image {
     let (w, h) = color.dims();
-    let c = color.data();
     let mut out = Image::new(w, h, 3);
     out.data_mut()
         .par_chunks_mut(3)
@@ -68,14 +83,7 @@ pub(super) fn smooth(
                 let s = surface.scale(i);
                 std::array::from_fn(|k| acc[k] / dof as f64 * s[k] * s[k])
             } else {
-                let (x, y) = (i % w, i / w);
-                let mut near = [0usize; 9];
-                let mut n = 0;
-                for j in window(x, y, w, h, 1) {
-                    near[n] = j;
-                    n += 1;
-                }
-                spread(c, &near[..n]).0
+                lone(i)
             };
             for k in 0..3 {
                 px[k] = var[k] as f32;

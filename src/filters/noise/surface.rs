@@ -109,6 +109,12 @@ impl<'a> Surface<'a> {
         }
     }
 
+    /// Whether pixel i's samples hit a surface: a normal is known there (true without normals).
+    pub(crate) fn hit(&self, i: usize) -> bool {
+        self.normal
+            .is_none_or(|n| n[3 * i..3 * i + 3].iter().any(|&v| v != 0.0))
+    }
+
     /// A variance of pixel i's colour, demodulated.
     pub(crate) fn demodulate_variance(&self, i: usize, v: impl Iterator<Item = f64>) -> [f64; 3] {
         let s = self.scale(i);
