@@ -334,6 +334,7 @@ fn ablate_prints_and_writes_the_table() {
         "without outlier",
         "without reliability",
         "reliability with median centres",
+        "reliability albedo without the geometry's floor",
         "coverage without the across-edge spread",
         "coverage without the colour's own edges",
         "outlier one-sided (dark dots kept)",
@@ -358,11 +359,12 @@ fn ablate_prints_and_writes_the_table() {
     }
     let text = std::fs::read_to_string(&csv).unwrap();
     // Header, then: full, nine stages removed (the noise stage is not: later stages read it; the
-    // outlier's row takes its spread with it), the reliability's median centre, coverage without
+    // outlier's row takes its spread with it), the reliability's median centre and its albedo
+    // without the geometry's floor, coverage without
     // its across-edge spread and without its colour-edge step, the outlier without dark dots, the
     // blend without its noise-level cap, the spread without its highlights, the four noise rows,
     // eight weights zeroed, plain SID.
-    assert_eq!(text.lines().count(), 1 + 29, "{text}");
+    assert_eq!(text.lines().count(), 1 + 30, "{text}");
     assert!(text.starts_with("variant,ssim,psnr,relmse,seconds,delta_ssim"));
     let bad = gsid(&[
         "ablate",

@@ -313,10 +313,11 @@ fn outputs_are_finite_and_non_negative_on_the_reported_inputs() {
 
 /// Fog at one sample a pixel: each pixel's sample saw, at random, the medium (bright, albedo 0.9)
 /// or the surface behind it (dark, albedo 0.2), so the colour and the albedo are the same salt and
-/// pepper, whose reference is flat (the mix). How much of the pattern the output keeps: the mean
-/// output of the medium's pixels minus that of the surface's, away from the border (the input's is
-/// 0.7).
-fn fog_contrast(sets: &[&str]) -> f64 {
+/// pepper, whose reference is flat (the mix). With `blender`, a medium sample writes what Blender
+/// writes for it, a camera-facing normal and depth 0; without, the geometry is the surface's alone.
+/// How much of the pattern the output keeps: the mean output of the medium's pixels minus that of
+/// the surface's, away from the border (the input's is 0.7).
+fn fog_contrast(sets: &[&str], blender: bool) -> f64 {
     let (w, h) = (40, 40);
     let mut b = synthetic_set(w, h);
     let mut state = 0x2545_f491_4f6c_dd1du64;
@@ -331,12 +332,15 @@ fn fog_contrast(sets: &[&str]) -> f64 {
     let mix = Image::from_fn(w, h, 3, |x, y, _| if medium[y * w + x] { 0.9 } else { 0.2 });
     b.insert("color", mix.clone()).unwrap();
     b.insert("albedo", mix).unwrap();
-    b.insert(
-        "normal",
-        Image::from_fn(w, h, 3, |_, _, c| (c == 2) as u8 as f32),
-    )
-    .unwrap();
-    b.insert("depth", Image::filled(w, h, 1, 2.0)).unwrap();
+    let scattered = |x: usize, y: usize| blender && medium[y * w + x];
+    // The surface a floor (normal +y); a sample that scattered faces the camera (+z).
+    let normal = Image::from_fn(w, h, 3, |x, y, c| {
+        let axis = if scattered(x, y) { 2 } else { 1 };
+        (c == axis) as u8 as f32
+    });
+    b.insert("normal", normal).unwrap();
+    let depth = Image::from_fn(w, h, 1, |x, y, _| if scattered(x, y) { 0.0 } else { 2.0 });
+    b.insert("depth", depth).unwrap();
     b.remove("material");
     b.remove("shadow");
     let out = run("full", sets, &mut b);
@@ -355,9 +359,18 @@ fn fog_contrast(sets: &[&str]) -> f64 {
 fn a_salt_and_pepper_albedo_guides_little() {
     // The output keeps less than a tenth of the input's pattern (it kept a sixth when the gate
     // pulled the albedo to its median, whose blotches guided the walks and the demodulation).
-    let kept = fog_contrast(&[]);
+    // `full` trusts the albedo as far as the geometry (`albedo_by_geometry`), and Blender's
+    // geometry in fog is as noisy as its albedo.
+    let kept = fog_contrast(&[], true);
     assert!(kept.abs() < 0.07, "kept {kept} of the input's 0.7");
+    // The gate alone, on geometry that shows only the surface.
+    let floor_off = "reliability.albedo_by_geometry=false";
+    let gate = fog_contrast(&[floor_off], false);
+    assert!(
+        gate.abs() < 0.07,
+        "the gate alone kept {gate} of the input's 0.7"
+    );
     // The median centre, still selectable, keeps more of it.
-    let median = fog_contrast(&["reliability.centre=median"]);
-    assert!(kept < median, "mean {kept} against median {median}");
+    let median = fog_contrast(&[floor_off, "reliability.centre=median"], false);
+    assert!(gate < median, "mean {gate} against median {median}");
 }
