@@ -132,12 +132,26 @@ fn estimate_in(kernel: Kernel, color: &Image, features: &FeatureSet, meter: &Met
         let s = surface.scale(i);
         std::array::from_fn(|k| v[k] * s[k] * s[k])
     };
+    // Read here, for the pixels `smooth` will find with no raw estimate among their mates, so the
+    // padded colour's memory is free before the smoothed image's.
+    let lone: Vec<(usize, [f64; 3])> = (0..w * h)
+        .into_par_iter()
+        .filter(|&i| !meter.cancelled() && mates.of(i).all(|j| dof[j] == 0))
+        .map(|i| (i, lone(i)))
+        .collect();
+    drop(flat);
+    if meter.cancelled() {
+        return Image::new(w, h, 3);
+    }
     smooth(
         color,
         &surface,
         &mates,
         |j| (sums[j], dof[j] as usize),
-        lone,
+        |i| match lone.binary_search_by_key(&i, |&(j, _)| j) {
+            Ok(at) => lone[at].1,
+            Err(_) => plain_spread(color, i),
+        },
         meter,
     )
 }
