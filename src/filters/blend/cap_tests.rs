@@ -8,7 +8,7 @@ use crate::filters::noise::from_image::tests::noisy_flat;
 use crate::image::Image;
 use crate::kernels::simd::Kernel;
 use crate::meter::Meter;
-use crate::render_set::FeatureSet;
+use crate::render_set::{Feature, FeatureSet};
 
 const SIDE: usize = 48;
 /// The flat background's noise σ, and the level it sits at.
@@ -184,7 +184,7 @@ fn a_pixel_without_surface_mates_keeps_its_own_estimate() {
             }
         },
     );
-    set.set(crate::render_set::Feature::Albedo, albedo).unwrap();
+    set.set(Feature::Albedo, albedo).unwrap();
     let keep = |q| {
         keep_weights_metered(
             Kernel::detect(),

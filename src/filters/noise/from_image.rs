@@ -123,7 +123,7 @@ fn estimate_in(kernel: Kernel, color: &Image, features: &FeatureSet, meter: &Met
                 }
             }
         }
-        let [(v, n)] = pair_spread_of::<1>(&flat, side, [bits], window, x, y, false);
+        let [(v, n)] = pair_spread_of::<1, false>(&flat, side, [bits], window, x, y);
         // A pixel whose samples hit nothing (beside a floor's edge at one sample) has no albedo
         // to bring the demodulated variance to: its colour is what few samples hit.
         if n == 0 || !surface.hit(i) {
@@ -210,19 +210,20 @@ fn pair_spread<const L: usize>(
 ) -> [([f64; 3], usize); L] {
     let mut bits = [0u64; L];
     bits.copy_from_slice(&mates.bits[y * w + x..y * w + x + L]);
-    pair_spread_of(flat, mates.side, bits, window, x, y, true)
+    pair_spread_of::<L, true>(flat, mates.side, bits, window, x, y)
 }
 
-/// [`pair_spread`] with the mates given as bits of a window of `side`.
+/// [`pair_spread`] with the mates given as bits of a window of `side`; `TRIMMED` false: each
+/// direction's untrimmed mean (a pixel without surface-mates), the direction still chosen by the
+/// trimmed ones.
 #[inline(always)]
-fn pair_spread_of<const L: usize>(
+fn pair_spread_of<const L: usize, const TRIMMED: bool>(
     flat: &Padded,
     side: usize,
     bits: [u64; L],
     window: u64,
     x: usize,
     y: usize,
-    trimmed: bool,
 ) -> [([f64; 3], usize); L] {
     let (side, c) = (side as isize, (side / 2) as isize);
     let bit = |(dx, dy): (isize, isize)| ((dy + c) * side + dx + c) as u32;
@@ -265,7 +266,7 @@ fn pair_spread_of<const L: usize>(
         let h = trim::lanes::<L, DIRECTION_PAIRS, DIRECTION_TRIMMED>(&d2[0], dropped[0]);
         let v = trim::lanes::<L, DIRECTION_PAIRS, DIRECTION_TRIMMED>(&d2[1], dropped[1]);
         // Untrimmed, each direction's mean of all its pairs: the variance with its tails.
-        let all = (!trimmed).then(|| {
+        let all = (!TRIMMED).then(|| {
             let none = [0usize; L];
             (
                 trim::lanes::<L, DIRECTION_PAIRS, DIRECTION_TRIMMED>(&d2[0], none),
