@@ -48,11 +48,17 @@ def frames(shot, spp):
 
 def glossy_mask(path, np):
     """Pixels whose glossy and transmitted colour outweigh the diffuse, or None without those passes."""
-    try:
-        with_passes = [gs.read_pass(path, name, "RGB").mean(axis=2) for name in ("DiffCol", "GlossCol", "TransCol")]
-    except SystemExit:
-        return None
-    diff, gloss, trans = with_passes
+    import OpenEXR
+
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        ch = f.channels()
+        colours = []
+        for name in ("DiffCol", "GlossCol", "TransCol"):
+            names = [[k for k in ch if k.split(".")[-2:] == [name, c]] for c in gs.CHANNELS]
+            if not all(len(n) == 1 for n in names):
+                return None
+            colours.append(sum(ch[n[0]].pixels.astype(np.float64) for n in names) / 3.0)
+    diff, gloss, trans = colours
     total = diff + gloss + trans
     return (gloss + trans) > 0.5 * np.maximum(total, 1e-12)
 
