@@ -160,12 +160,74 @@ pub fn check_recorded(buffers: &Buffers) -> Result<()> {
     Ok(())
 }
 
+/// Squared length below which a normal is unknown: the pixel's samples hit no surface.
+const NO_NORMAL: f32 = 1e-12;
+/// Squared lengths of a normal averaged over samples of which some missed (a silhouette's pixel).
+const SHORT: std::ops::Range<f32> = 0.02 * 0.02..0.9 * 0.9;
+/// Normals count as averaged over samples when at least one pixel in this many is short.
+const SHORT_SHARE: usize = 1000;
+/// Largest albedo kept for a pixel that hit no surface: far above any light a render is exposed for.
+const MAX_SEEN: f32 = 1e6;
+
+/// Whether a normal (raw, before sanitising) says its pixel's samples hit no surface.
+fn no_surface(n: &[f32]) -> bool {
+    let len2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
+    !len2.is_finite() || len2 < NO_NORMAL
+}
+
+/// What pixels that hit no surface saw, where the renderer wrote it as their albedo (before the
+/// clamp to [0, 1]), zero elsewhere; `None` when no pixel has one or when the normals are not averaged
+/// over samples. Blender writes a light or the sky a pixel saw, directly or in a mirror, as that pixel's
+/// albedo, and its colour is that albedo times about one: the noise estimate demodulates such pixels
+/// by it, so a light reflected in chrome reads as flat as texture does (docs/ALGORITHM.md §8).
+/// Averaged over several samples a normal is shorter than 1 where only some samples hit, so a zero
+/// normal there means every sample missed; where no normal is short (one sample a pixel, or a renderer
+/// that normalises), a zero normal may be one sample's miss beside an edge, whose colour is no mean of
+/// what the pixel sees, and nothing is taken.
+fn seen_albedo(features: &FeatureSet) -> Option<Image> {
+    let (albedo, normal) = (
+        features.get(Feature::Albedo)?,
+        features.get(Feature::Normal)?,
+    );
+    if albedo.dims() != normal.dims() {
+        return None;
+    }
+    let (w, h) = albedo.dims();
+    let short = normal
+        .data()
+        .chunks_exact(3)
+        .filter(|n| SHORT.contains(&(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])))
+        .count();
+    if short * SHORT_SHARE < w * h {
+        return None;
+    }
+    let mut seen = Image::new(w, h, 3);
+    let mut any = false;
+    for ((out, a), n) in seen
+        .data_mut()
+        .chunks_exact_mut(3)
+        .zip(albedo.data().chunks_exact(3))
+        .zip(normal.data().chunks_exact(3))
+    {
+        if no_surface(n) && a.iter().all(|v| v.is_finite()) && a.iter().any(|&v| v > 0.0) {
+            for (o, &v) in out.iter_mut().zip(a) {
+                *o = v.clamp(0.0, MAX_SEEN);
+            }
+            any = true;
+        }
+    }
+    any.then_some(seen)
+}
+
 /// Sanitises the colour and every feature buffer in place.
 pub fn sanitize(color: Option<&mut Image>, features: &mut FeatureSet) -> SanitizeReport {
     let mut report = SanitizeReport::default();
     if let Some(img) = color {
         (report.color_nonfinite, report.color_negative) = sanitize_radiance(img);
     }
+    // Read before the albedo is clamped and the normals renormalised.
+    let seen = seen_albedo(features);
+    features.set_seen(seen);
     for feature in [Feature::Albedo, Feature::Material, Feature::Shadow] {
         if let Some(img) = features.get_mut(feature) {
             let [clamped] = fix_each(img.data_mut(), |v| {
@@ -194,7 +256,7 @@ pub fn sanitize(color: Option<&mut Image>, features: &mut FeatureSet) -> Sanitiz
                 let mut unknown = 0;
                 for n in chunk.chunks_exact_mut(3) {
                     let len2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
-                    if !len2.is_finite() || len2 < 1e-12 {
+                    if no_surface(n) {
                         if n.iter().any(|v| *v != 0.0) || !len2.is_finite() {
                             unknown += 1;
                         }
@@ -342,6 +404,36 @@ fn scale_image(img: &mut Image, factor: f32) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// What a pixel that hit no surface saw is kept for the noise estimate, above 1 too, where the
+    /// normals are averaged over samples (some are short); with one sample a pixel (every normal
+    /// unit or zero) a zero normal may be one miss beside an edge, and nothing is kept.
+    #[test]
+    fn what_a_pixel_without_surface_saw_is_kept_where_normals_are_averaged() {
+        let albedo =
+            Image::from_vec(3, 1, 3, vec![0.5, 0.5, 0.5, 7.0, 6.0, 5.0, 0.2, 0.2, 0.2]).unwrap();
+        for (short, kept) in [(0.5, true), (1.0, false)] {
+            let normal =
+                Image::from_vec(3, 1, 3, vec![0.0, 0.0, short, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]);
+            let mut set = FeatureSet::default();
+            set.set(Feature::Albedo, albedo.clone()).unwrap();
+            set.set(Feature::Normal, normal.unwrap()).unwrap();
+            sanitize(None, &mut set);
+            assert_eq!(set.get(Feature::Albedo).unwrap().pixel(1), &[1.0, 1.0, 1.0]);
+            match set.seen() {
+                Some(seen) if kept => {
+                    assert_eq!(seen.pixel(1), &[7.0, 6.0, 5.0]);
+                    assert_eq!(seen.pixel(0), &[0.0; 3]);
+                    assert_eq!(seen.pixel(2), &[0.0; 3]);
+                }
+                None if !kept => {}
+                other => panic!(
+                    "short normal {short}: {:?}",
+                    other.map(|s| s.data().to_vec())
+                ),
+            }
+        }
+    }
 
     #[test]
     fn counts_and_fixes_bad_samples() {

@@ -63,9 +63,22 @@ pub struct FeatureSet {
     material: Option<Image>,
     shadow: Option<Image>,
     depth: Option<Image>,
+    /// Where no surface was hit (no normal) and the renderer wrote an albedo above 1, that albedo:
+    /// what the pixel saw, a light or the sky (Blender writes the emission there). Every stage sees
+    /// the albedo clamped to [0, 1]; only the noise estimate reads this, to demodulate such pixels.
+    seen: Option<Image>,
 }
 
 impl FeatureSet {
+    /// The albedo above 1 of pixels that hit no surface (see the field), if any pixel has one.
+    pub fn seen(&self) -> Option<&Image> {
+        self.seen.as_ref()
+    }
+
+    pub(crate) fn set_seen(&mut self, image: Option<Image>) {
+        self.seen = image;
+    }
+
     pub fn get(&self, feature: Feature) -> Option<&Image> {
         self.slot(feature).as_ref()
     }

@@ -27,7 +27,8 @@ pub(crate) const MIN_MATES: usize = 4;
 /// out of it. Raw estimates from one 5×5 window are themselves noisy, so they are averaged over a
 /// 7×7 window of the same surface, weighted by their degrees of freedom. A pixel that finds no
 /// surface-mates reads the adjacent pairs of its whole 5×5 window; one whose samples hit nothing
-/// (no normal) or without pairs (a 1×1 image) takes the plain 3×3 spread, or 0 when it has none.
+/// (no normal) and whose renderer wrote nothing it saw (`FeatureSet::seen`), or without pairs (a 1×1
+/// image), takes the plain 3×3 spread, or 0 when it has none.
 pub fn estimate(color: &Image, features: &FeatureSet) -> Image {
     estimate_with(Kernel::detect(), color, features)
 }
@@ -125,8 +126,10 @@ fn estimate_in(kernel: Kernel, color: &Image, features: &FeatureSet, meter: &Met
         }
         let [(v, n)] = pair_spread_of::<1, false>(&flat, side, [bits], window, x, y);
         // A pixel whose samples hit nothing (beside a floor's edge at one sample) has no albedo
-        // to bring the demodulated variance to: its colour is what few samples hit.
-        if n == 0 || !surface.hit(i) {
+        // to bring the demodulated variance to: its colour is what few samples hit. Unless the
+        // renderer wrote what it saw (a light in a mirror, with every sample of the pixel missing
+        // the surfaces): demodulated by that, its pairs read the noise, not the light's shape.
+        if n == 0 || !(surface.hit(i) || surface.seen(i)) {
             return plain_spread(color, i);
         }
         let s = surface.scale(i);
@@ -403,6 +406,68 @@ pub(crate) mod tests {
             est.at(hx, hy)[0] > floor,
             "the hole reads {:.2e}, the floor {floor:.2e}",
             est.at(hx, hy)[0]
+        );
+    }
+
+    /// A light seen in a mirror: its pixels hit no surface (no normal) and Blender writes the light
+    /// as their albedo, the colour being that albedo times about one. The light's shape (0.1 to 10
+    /// across a few pixels) is no noise: demodulated by what the pixel saw, its pairs read the
+    /// colour's own 1 % noise; the plain spread of its colours, which it took before, reads the
+    /// shape, hundreds of times the noise. Normals averaged over samples (short at the wall's edge)
+    /// say a zero normal is every sample missing.
+    #[test]
+    fn a_light_seen_in_a_mirror_reads_its_noise_not_its_shape() {
+        let (w, h, rel) = (24, 24, 0.01f32);
+        let noise = noisy_flat(w, h, 0.0, 1.0, 13);
+        let mirror = |x: usize| x >= 8;
+        let light = |x: usize, y: usize| {
+            let (dx, dy) = (x as f32 - 16.0, y as f32 - 12.0);
+            0.02 + 10.0 * (-(dx * dx + dy * dy) / 4.0).exp()
+        };
+        let albedo = Image::from_fn(w, h, 3, |x, y, _| if mirror(x) { light(x, y) } else { 0.5 });
+        let normal = Image::from_fn(w, h, 3, |x, _, k| match (mirror(x), x == 7) {
+            (true, _) => 0.0,
+            (false, edge) => (k == 2) as u8 as f32 * if edge { 0.5 } else { 1.0 },
+        });
+        let mut color = Image::from_fn(w, h, 3, |x, y, k| {
+            let n = noise.at(x, y)[k];
+            if mirror(x) {
+                1.03 * light(x, y) * (1.0 + rel * n)
+            } else {
+                0.3 + 0.03 * n
+            }
+        });
+        let mut set = FeatureSet::default();
+        set.set(Feature::Albedo, albedo).unwrap();
+        set.set(Feature::Normal, normal).unwrap();
+        crate::condition::sanitize(Some(&mut color), &mut set);
+        assert!(set
+            .get(Feature::Albedo)
+            .unwrap()
+            .data()
+            .iter()
+            .all(|&a| a <= 1.0));
+        let median_ratio = |set: &FeatureSet| {
+            let est = estimate(&color, set);
+            // The light and its rim, where its few pixels step from 0.1 to 10 and have no mates.
+            let mut r: Vec<f32> = (10..22)
+                .flat_map(|x| (6..18).map(move |y| (x, y)))
+                .filter(|&(x, y)| light(x, y) > 0.1)
+                .map(|(x, y)| est.at(x, y)[0] / (1.03 * light(x, y) * rel).powi(2))
+                .collect();
+            r.sort_by(f32::total_cmp);
+            r[r.len() / 2]
+        };
+        let seen = median_ratio(&set);
+        assert!(
+            (0.25..4.0).contains(&seen),
+            "the light reads {seen:.2}× its noise"
+        );
+        set.set_seen(None);
+        let blind = median_ratio(&set);
+        assert!(
+            blind > 50.0 * seen,
+            "without what it saw: {blind:.1}× against {seen:.2}×"
         );
     }
 

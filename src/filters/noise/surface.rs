@@ -13,6 +13,10 @@ use crate::render_set::{Feature, FeatureSet};
 const KEYS: usize = 8;
 /// Keeps remodulation finite on black albedo.
 const ALBEDO_EPS: f32 = 0.02;
+/// The same guard for what a pixel without surface saw (`FeatureSet::seen`): its colour is that
+/// times about one, so any floor on the order of its values (the dark sky beside a light, 0.02)
+/// makes demodulated neighbours differ by the light's shape; this one only keeps the ratio finite.
+const SEEN_EPS: f32 = 1e-4;
 
 /// When two pixels are taken to lie on one surface. Loose enough for the few-sample features of
 /// a 1 spp render, tight enough to keep texture, creases and silhouettes apart.
@@ -25,6 +29,8 @@ pub(crate) struct Surface<'a> {
     albedo: Option<&'a [f32]>,
     normal: Option<&'a [f32]>,
     depth: Option<&'a [f32]>,
+    /// The albedo above 1 of pixels that hit no surface (`FeatureSet::seen`).
+    seen: Option<&'a [f32]>,
 }
 
 impl<'a> Surface<'a> {
@@ -39,6 +45,10 @@ impl<'a> Surface<'a> {
             albedo: get(Feature::Albedo),
             normal: get(Feature::Normal),
             depth: get(Feature::Depth),
+            seen: features
+                .seen()
+                .filter(|img| img.dims() == dims)
+                .map(Image::data),
         }
     }
 
@@ -103,10 +113,23 @@ impl<'a> Surface<'a> {
     /// Pixel i's albedo + ε per channel (1 without albedo): colour divided by it is demodulated.
     #[inline]
     pub(crate) fn scale(&self, i: usize) -> [f64; 3] {
+        if let Some(s) = self
+            .seen
+            .map(|s| &s[3 * i..3 * i + 3])
+            .filter(|s| s.iter().any(|&v| v > 0.0))
+        {
+            return std::array::from_fn(|k| (s[k] + SEEN_EPS) as f64);
+        }
         match self.albedo {
             Some(a) => std::array::from_fn(|k| (a[3 * i + k].max(0.0) + ALBEDO_EPS) as f64),
             None => [1.0; 3],
         }
+    }
+
+    /// Whether pixel i hit no surface but saw a light the albedo records (`FeatureSet::seen`).
+    pub(crate) fn seen(&self, i: usize) -> bool {
+        self.seen
+            .is_some_and(|s| s[3 * i..3 * i + 3].iter().any(|&v| v > 0.0))
     }
 
     /// Whether pixel i's samples hit a surface: a normal is known there (true without normals).
