@@ -63,14 +63,15 @@ pub struct FeatureSet {
     material: Option<Image>,
     shadow: Option<Image>,
     depth: Option<Image>,
-    /// Where no surface was hit (no normal) and the renderer wrote an albedo above 1, that albedo:
-    /// what the pixel saw, a light or the sky (Blender writes the emission there). Every stage sees
-    /// the albedo clamped to [0, 1]; only the noise estimate reads this, to demodulate such pixels.
+    /// Where no surface was hit (no normal) and the renderer wrote an albedo, that albedo unclamped:
+    /// what the pixel saw, a light or the sky (Blender writes it there); kept only where the normals
+    /// are averaged over samples (`condition::sanitize`). Every stage sees the albedo clamped to
+    /// [0, 1]; only the noise estimate reads this, to demodulate such pixels.
     seen: Option<Image>,
 }
 
 impl FeatureSet {
-    /// The albedo above 1 of pixels that hit no surface (see the field), if any pixel has one.
+    /// What the pixels that hit no surface saw (see the field), if any pixel has it.
     pub fn seen(&self) -> Option<&Image> {
         self.seen.as_ref()
     }

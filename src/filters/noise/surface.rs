@@ -29,7 +29,7 @@ pub(crate) struct Surface<'a> {
     albedo: Option<&'a [f32]>,
     normal: Option<&'a [f32]>,
     depth: Option<&'a [f32]>,
-    /// The albedo above 1 of pixels that hit no surface (`FeatureSet::seen`).
+    /// What pixels that hit no surface saw, their raw albedo (`FeatureSet::seen`); 0 elsewhere.
     seen: Option<&'a [f32]>,
 }
 
@@ -126,7 +126,7 @@ impl<'a> Surface<'a> {
         }
     }
 
-    /// Whether pixel i hit no surface but saw a light the albedo records (`FeatureSet::seen`).
+    /// Whether pixel i hit no surface and the renderer recorded what it saw (`FeatureSet::seen`).
     pub(crate) fn seen(&self, i: usize) -> bool {
         self.seen
             .is_some_and(|s| s[3 * i..3 * i + 3].iter().any(|&v| v > 0.0))
