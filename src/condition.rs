@@ -169,9 +169,14 @@ const SHORT_SHARE: usize = 1000;
 /// Largest albedo kept for a pixel that hit no surface: far above any light a render is exposed for.
 const MAX_SEEN: f32 = 1e6;
 
-/// Whether a normal (raw, before sanitising) says its pixel's samples hit no surface.
-fn no_surface(n: &[f32]) -> bool {
-    let len2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
+/// A normal's squared length.
+fn length2(n: &[f32]) -> f32 {
+    n[0] * n[0] + n[1] * n[1] + n[2] * n[2]
+}
+
+/// Whether a normal of squared length `len2` (raw, before sanitising) says its pixel's samples hit
+/// no surface.
+fn no_surface(len2: f32) -> bool {
     !len2.is_finite() || len2 < NO_NORMAL
 }
 
@@ -196,7 +201,7 @@ fn seen_albedo(features: &FeatureSet) -> Option<Image> {
     let short = normal
         .data()
         .chunks_exact(3)
-        .filter(|n| SHORT.contains(&(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])))
+        .filter(|n| SHORT.contains(&length2(n)))
         .count();
     if short * SHORT_SHARE < w * h {
         return None;
@@ -209,7 +214,7 @@ fn seen_albedo(features: &FeatureSet) -> Option<Image> {
         .zip(albedo.data().chunks_exact(3))
         .zip(normal.data().chunks_exact(3))
     {
-        if no_surface(n) && a.iter().all(|v| v.is_finite()) && a.iter().any(|&v| v > 0.0) {
+        if no_surface(length2(n)) && a.iter().all(|v| v.is_finite()) && a.iter().any(|&v| v > 0.0) {
             for (o, &v) in out.iter_mut().zip(a) {
                 *o = v.clamp(0.0, MAX_SEEN);
             }
@@ -255,8 +260,8 @@ pub fn sanitize(color: Option<&mut Image>, features: &mut FeatureSet) -> Sanitiz
             .map(|chunk| {
                 let mut unknown = 0;
                 for n in chunk.chunks_exact_mut(3) {
-                    let len2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
-                    if no_surface(n) {
+                    let len2 = length2(n);
+                    if no_surface(len2) {
                         if n.iter().any(|v| *v != 0.0) || !len2.is_finite() {
                             unknown += 1;
                         }
