@@ -92,9 +92,9 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
     // A `reliability` stage's surface mean against its median centre and its albedo floor (the
     // geometry's reliability), where a pipeline turns it on, against off; a `coverage` stage's
     // across-edge spread (the renderer's estimated pixel-filter width) and its step along the
-    // edges only the colour shows, each against none; an `outlier` stage's dark dots and a `blend`
-    // stage's noise-level cap and a `spread` stage's highlights, where a pipeline turns them on,
-    // against off.
+    // edges only the colour shows, each against none; an `outlier` stage's dark dots, a `blend`
+    // stage's noise-level cap and its leak test's level, and a `spread` stage's highlights, where a
+    // pipeline turns them on, against off.
     type On<'a> = &'a dyn Fn(Option<&toml::Value>) -> bool;
     let unset_or = |want: toml::Value| move |v: Option<&toml::Value>| v.is_none_or(|v| *v == want);
     let (mean_centre, unset_or_true) = (unset_or("mean".into()), unset_or(true.into()));
@@ -103,13 +103,14 @@ pub fn variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
         |v: Option<&toml::Value>| v.and_then(toml::Value::as_float).is_some_and(|q| q > 0.0);
     let off = toml::Value::Float(0.0);
     #[rustfmt::skip]
-    let switches: [(&str, &str, On, toml::Value, &str); 7] = [
+    let switches: [(&str, &str, On, toml::Value, &str); 8] = [
         ("reliability", "centre", &mean_centre, "median".into(), "with median centres"),
         ("reliability", "albedo_by_geometry", &set_true, false.into(), "albedo without the geometry's floor"),
         ("coverage", "across", &unset_or_true, false.into(), "without the across-edge spread"),
         ("coverage", "colour", &unset_or_true, false.into(), "without the colour's own edges"),
         ("outlier", "two_sided", &set_true, false.into(), "one-sided (dark dots kept)"),
         ("blend", "noise_level", &positive, off.clone(), "without the noise-level cap"),
+        ("blend", "leak_level", &positive, off.clone(), "without the leak test's level"),
         ("spread", "highlights", &positive, off, "without highlights kept"),
     ];
     for (kind, key, on, other, label) in switches {

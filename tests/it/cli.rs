@@ -339,6 +339,7 @@ fn ablate_prints_and_writes_the_table() {
         "coverage without the colour's own edges",
         "outlier one-sided (dark dots kept)",
         "blend without the noise-level cap",
+        "blend without the leak test's level",
         "spread without highlights kept",
         "without prefilter",
         "without pyramid",
