@@ -69,7 +69,8 @@ pub fn along_edges(
                 px.copy_from_slice(&c[3 * i..3 * i + 3]);
                 let var = pixel_variance(&v[3 * i..3 * i + 3]);
                 let pos = (x as f32, y as f32);
-                let share = jump_share(guide, pos, normals[i], reach, gate, scratch);
+                let noise = guide_noise(&c[3 * i..3 * i + 3], &v[3 * i..3 * i + 3]);
+                let share = jump_share(guide, pos, normals[i], reach, (gate, noise), scratch);
                 if share <= 0.0 || var <= 0.0 {
                     continue;
                 }
@@ -84,6 +85,23 @@ pub fn along_edges(
         },
     );
     Image::from_vec(w, h, 3, out).expect("3 channels a pixel")
+}
+
+/// The squared distance in the tone-mapped colour guide (c / (1 + c) per channel) that two
+/// independent reads of a pixel of colour `c` and noise variance `v` differ by: Σ 2 v / (1 + c)⁴.
+fn guide_noise(c: &[f32], v: &[f32]) -> f64 {
+    c.iter()
+        .zip(v)
+        .map(|(&c, &v)| {
+            let slope = 1.0 / (1.0 + (c as f64).max(0.0)).powi(2);
+            let v = v as f64;
+            if v.is_finite() && v > 0.0 && slope.is_finite() {
+                2.0 * v * slope * slope
+            } else {
+                0.0
+            }
+        })
+        .sum()
 }
 
 /// The points along the edge through `(x, y)`: `reach` pixel steps each way along the tangent.
@@ -129,14 +147,15 @@ fn mean_along(
 /// Under [`Gate::Scatter`] also 0 where the guide's mean along the edge is not a mix of its two
 /// sides (beyond either side, or off the line between them by more than a quarter of their
 /// distance): the pixels along a colour edge that are each some share of its sides average to
-/// such a mix, structure along it (a reflection, a pattern) need not. `scratch` holds
+/// such a mix, structure along it (a reflection, a pattern) need not; and 0 where either side is not
+/// one level along the edge ([`sides_even`]). `scratch` holds
 /// `2·reach + 6` guide pixels.
 fn jump_share(
     guide: &Guide,
     (x, y): (f32, f32),
     (nx, ny): (f32, f32),
     reach: usize,
-    gate: Gate,
+    (gate, noise): (Gate, f64),
     scratch: &mut [f32],
 ) -> f64 {
     let g = guide.planes.len();
@@ -171,12 +190,56 @@ fn jump_share(
             *m += s / count;
         }
     }
-    if gate == Gate::Scatter && !a_mix_of(mean, a, b, contrast) {
+    if gate == Gate::Scatter
+        && (!a_mix_of(mean, a, b, contrast)
+            || !sides_even(
+                (a, a3),
+                (b, b3),
+                guide,
+                (x, y),
+                (nx, ny),
+                reach,
+                (contrast, noise),
+            ))
+    {
         return 0.0;
     }
     let spread: f64 = samples.chunks_exact(g).map(|s| dist(s, mean)).sum();
     let spread = spread / count as f64;
     (spread / (contrast / 4.0)).clamp(0.0, 1.0)
+}
+
+/// Whether each side of the edge through `pos` is one level along it: the guide `SIDE` pixels
+/// across, at every point along the edge, within a quarter of the edge's distance (|a − b|² =
+/// `contrast`) of that side's value `a` or `b` at the pixel itself, in mean square, beyond what the
+/// colour's `noise` (the squared guide distance two samples of it differ by) explains. A straight edge
+/// whose pixels show one side or the other at random has even sides; a reflection's highlight or a
+/// pattern the line crosses does not, and the mean along such a line is no pixel's expected mix.
+/// `sa` and `sb` hold one guide pixel each.
+fn sides_even(
+    (a, sa): (&[f32], &mut [f32]),
+    (b, sb): (&[f32], &mut [f32]),
+    guide: &Guide,
+    pos: (f32, f32),
+    (nx, ny): (f32, f32),
+    reach: usize,
+    (contrast, noise): (f64, f64),
+) -> bool {
+    let dist = |p: &[f32], q: &[f32]| -> f64 {
+        p.iter()
+            .zip(q)
+            .map(|(&s, &t)| ((s - t) as f64).powi(2))
+            .sum()
+    };
+    let (mut da, mut db) = (0.0, 0.0);
+    for (px, py) in along(pos, (nx, ny), reach) {
+        guide.sample(px + SIDE * nx, py + SIDE * ny, sa);
+        guide.sample(px - SIDE * nx, py - SIDE * ny, sb);
+        da += dist(sa, a);
+        db += dist(sb, b);
+    }
+    let count = (2 * reach + 1) as f64;
+    da.max(db) / count <= contrast / 16.0 + noise
 }
 
 /// Whether `m` lies between `a` and `b` (its projection on the line from `b` to `a` within the

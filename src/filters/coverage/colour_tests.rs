@@ -175,3 +175,33 @@ fn a_temporal_frame_skips_the_colour_step_unless_asked() {
     assert_eq!(staged("", true), rim(5, false));
     assert_eq!(staged("stack_colour = true", true), single);
 }
+
+#[test]
+fn a_dark_pixel_beside_a_reflected_highlight_is_not_lit() {
+    // `cycles-studio` at 16 spp, the filtered colour around a light reflected in the chrome bowl
+    // (luminance, rows 61-69, columns 28-36): the dark pixel right of the highlight's core (row 4,
+    // column 4, reference 0.028) was lit to 0.28 when some line through it ran between the
+    // highlight's levels: the mean along it was a mix of its two sides, but neither side is one
+    // level along it, so it is no edge whose pixels show one side or the other.
+    #[rustfmt::skip]
+    const PATCH: [[f32; 9]; 9] = [
+        [0.035, 0.03, 0.026, 0.029, 0.026, 0.026, 0.027, 0.05, 0.2],
+        [0.158, 0.138, 0.118, 0.072, 0.074, 0.072, 0.075, 0.074, 0.106],
+        [0.062, 0.058, 0.054, 0.051, 0.04, 0.038, 0.05, 0.071, 0.083],
+        [0.02, 1.572, 0.796, 0.62, 0.026, 0.024, 0.021, 0.027, 0.051],
+        [1.774, 7.665, 6.74, 1.719, 0.024, 0.024, 0.024, 0.024, 0.024],
+        [0.023, 1.553, 0.816, 0.665, 1.198, 0.024, 0.024, 0.024, 0.024],
+        [0.087, 1.039, 0.589, 0.569, 0.542, 1.092, 1.049, 0.561, 0.045],
+        [0.072, 0.145, 0.121, 0.119, 0.023, 0.02, 0.591, 0.043, 0.108],
+        [0.205, 0.198, 0.164, 0.053, 0.034, 0.035, 0.044, 0.044, 0.045],
+    ];
+    let color = Image::from_fn(9, 9, 3, |x, y, _| PATCH[y][x]);
+    // Its noise as the image's estimate read it: σ 0.001 on the dark pixels, more on the bright.
+    let variance = Image::from_fn(9, 9, 3, |x, y, _| (0.03 * PATCH[y][x]).powi(2));
+    let out = along_colour_edges(&color, &variance, (1, 1.0), &Meter::default());
+    let dark = out.pixel(4 * 9 + 4)[0];
+    assert!(
+        (dark - 0.024).abs() < 0.005,
+        "the dark pixel went 0.024 → {dark}"
+    );
+}
