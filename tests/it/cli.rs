@@ -363,9 +363,9 @@ fn ablate_prints_and_writes_the_table() {
     // outlier's row takes its spread with it), the reliability's median centre and its albedo
     // without the geometry's floor, coverage without
     // its across-edge spread and without its colour-edge step, the outlier without dark dots, the
-    // blend without its noise-level cap, the spread without its highlights, the four noise rows,
-    // eight weights zeroed, plain SID.
-    assert_eq!(text.lines().count(), 1 + 30, "{text}");
+    // blend without its noise-level cap and without its leak test's level, the spread without its
+    // highlights, the four noise rows, eight weights zeroed, plain SID.
+    assert_eq!(text.lines().count(), 1 + 31, "{text}");
     assert!(text.starts_with("variant,ssim,psnr,relmse,seconds,delta_ssim"));
     let bad = gsid(&[
         "ablate",
