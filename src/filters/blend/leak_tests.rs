@@ -21,7 +21,7 @@ const STRUCTURE_VAR: f32 = 0.04;
 
 /// (colour, filtered, variance): the noisy flat surface filtered to its mean, the `LIT` columns
 /// too from their input `dark`; their estimate and their neighbours' reads `STRUCTURE_VAR`.
-fn lit_beside_highlight(dark: f32) -> (Image, Image, Image) {
+pub(super) fn lit_beside_highlight(dark: f32) -> (Image, Image, Image) {
     let noise = noisy_flat(SIDE, SIDE, 0.0, STD, 7);
     let color = Image::from_fn(SIDE, SIDE, 3, |x, y, _| {
         if LIT.contains(&x) {

@@ -16,6 +16,7 @@
 //! noise_level = 0.0      # quantile of the image's noise-level function capping the test (0: off)
 //! stack_noise_level = 0.0 # the same for a variance measured from a shot's frames (`--temporal`)
 //! leak_level = 0.0       # quantile of the noise-level function capping the leak test (0: off)
+//! stack_leak_level = 0.0 # the same for a variance measured from a shot's frames (`--temporal`)
 //! ```
 
 #[cfg(test)]
@@ -63,8 +64,11 @@ pub struct BlendParams {
     /// variance the leak test holds a rise against, where the filter brightened a pixel whose
     /// noise by that level is small against its brightness (nearly symmetric): the local estimate
     /// reads a reflection's structure as noise and would let a highlight's light into the dark
-    /// pixels beside it. 0: the local estimate alone. Not under `--temporal`.
+    /// pixels beside it. 0: the local estimate alone.
     pub leak_level: f64,
+    /// The same where the variance was measured from a shot's frames (`--temporal`): a moving
+    /// reflection's light reaches a pixel through the merge as through a filter.
+    pub stack_leak_level: f64,
 }
 
 impl Default for BlendParams {
@@ -78,6 +82,7 @@ impl Default for BlendParams {
             noise_level: 0.0,
             stack_noise_level: 0.0,
             leak_level: 0.0,
+            stack_leak_level: 0.0,
         }
     }
 }
@@ -99,6 +104,7 @@ impl BlendParams {
             ("noise_level", self.noise_level),
             ("stack_noise_level", self.stack_noise_level),
             ("leak_level", self.leak_level),
+            ("stack_leak_level", self.stack_leak_level),
         ] {
             if !(0.0..=1.0).contains(&value) {
                 return Err(Error::range(key, value, "0 (off) to 1"));
@@ -154,7 +160,7 @@ impl Stage for BlendStage {
             (
                 self.params.stack_tolerance,
                 self.params.stack_noise_level,
-                0.0,
+                self.params.stack_leak_level,
             )
         } else {
             (
@@ -255,6 +261,22 @@ mod tests {
         assert_eq!(
             band_blended(true, 0.75).data(),
             band_blended(true, 0.0).data()
+        );
+    }
+
+    #[test]
+    fn the_leak_level_follows_its_own_key_on_a_stack_frame() {
+        // The leak tests' lit dark columns beside a highlight, as a `--temporal` frame: taken back
+        // under `stack_leak_level`, whatever `leak_level` says, and kept without it.
+        let lit = |table: &str| {
+            let case = super::leak_tests::lit_beside_highlight(0.3);
+            staged(&format!("tolerance = 2.0\n{table}"), case, true).at(20, 24)[0]
+        };
+        assert!(lit("stack_leak_level = 0.5") < 0.31);
+        assert_eq!(lit("leak_level = 0.5"), 0.5);
+        assert_eq!(
+            lit("stack_leak_level = 0.5\nleak_level = 0.5"),
+            lit("stack_leak_level = 0.5")
         );
     }
 
