@@ -69,7 +69,10 @@ pub fn along_edges(
                 px.copy_from_slice(&c[3 * i..3 * i + 3]);
                 let var = pixel_variance(&v[3 * i..3 * i + 3]);
                 let pos = (x as f32, y as f32);
-                let noise = guide_noise(&c[3 * i..3 * i + 3], &v[3 * i..3 * i + 3]);
+                let noise = match gate {
+                    Gate::Noise => 0.0,
+                    Gate::Scatter => guide_noise(&c[3 * i..3 * i + 3], &v[3 * i..3 * i + 3]),
+                };
                 let share = jump_share(guide, pos, normals[i], reach, (gate, noise), scratch);
                 if share <= 0.0 || var <= 0.0 {
                     continue;
@@ -164,12 +167,6 @@ fn jump_share(
     let (a3, rest) = rest.split_at_mut(g);
     let (b3, rest) = rest.split_at_mut(g);
     let (mean, samples) = rest.split_at_mut(g);
-    let dist = |p: &[f32], q: &[f32]| -> f64 {
-        p.iter()
-            .zip(q)
-            .map(|(&s, &t)| ((s - t) as f64).powi(2))
-            .sum()
-    };
     guide.sample(x + SIDE * nx, y + SIDE * ny, a);
     guide.sample(x - SIDE * nx, y - SIDE * ny, b);
     let contrast = dist(a, b);
@@ -225,12 +222,6 @@ fn sides_even(
     reach: usize,
     (contrast, noise): (f64, f64),
 ) -> bool {
-    let dist = |p: &[f32], q: &[f32]| -> f64 {
-        p.iter()
-            .zip(q)
-            .map(|(&s, &t)| ((s - t) as f64).powi(2))
-            .sum()
-    };
     let (mut da, mut db) = (0.0, 0.0);
     for (px, py) in along(pos, (nx, ny), reach) {
         guide.sample(px + SIDE * nx, py + SIDE * ny, sa);
@@ -240,6 +231,14 @@ fn sides_even(
     }
     let count = (2 * reach + 1) as f64;
     da.max(db) / count <= contrast / 16.0 + noise
+}
+
+/// The squared distance of two guide pixels.
+fn dist(p: &[f32], q: &[f32]) -> f64 {
+    p.iter()
+        .zip(q)
+        .map(|(&s, &t)| ((s - t) as f64).powi(2))
+        .sum()
 }
 
 /// Whether `m` lies between `a` and `b` (its projection on the line from `b` to `a` within the

@@ -196,7 +196,8 @@ fn a_dark_pixel_beside_a_reflected_highlight_is_not_lit() {
         [0.205, 0.198, 0.164, 0.053, 0.034, 0.035, 0.044, 0.044, 0.045],
     ];
     let color = Image::from_fn(9, 9, 3, |x, y, _| PATCH[y][x]);
-    // Its noise as the image's estimate read it: σ 0.001 on the dark pixels, more on the bright.
+    // A noise of 3 % of each pixel's level: σ under 0.001 on the dark pixels, as the image's
+    // estimate read them.
     let variance = Image::from_fn(9, 9, 3, |x, y, _| (0.03 * PATCH[y][x]).powi(2));
     let out = along_colour_edges(&color, &variance, (1, 1.0), &Meter::default());
     let dark = out.pixel(4 * 9 + 4)[0];
