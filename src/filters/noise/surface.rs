@@ -113,11 +113,7 @@ impl<'a> Surface<'a> {
     /// Pixel i's albedo + ε per channel (1 without albedo): colour divided by it is demodulated.
     #[inline]
     pub(crate) fn scale(&self, i: usize) -> [f64; 3] {
-        if let Some(s) = self
-            .seen
-            .map(|s| &s[3 * i..3 * i + 3])
-            .filter(|s| s.iter().any(|&v| v > 0.0))
-        {
+        if let Some(s) = self.seen_at(i) {
             return std::array::from_fn(|k| (s[k] + SEEN_EPS) as f64);
         }
         match self.albedo {
@@ -128,8 +124,15 @@ impl<'a> Surface<'a> {
 
     /// Whether pixel i hit no surface and the renderer recorded what it saw (`FeatureSet::seen`).
     pub(crate) fn seen(&self, i: usize) -> bool {
+        self.seen_at(i).is_some()
+    }
+
+    /// What pixel i saw, where it hit no surface and the renderer recorded it.
+    #[inline]
+    fn seen_at(&self, i: usize) -> Option<&'a [f32]> {
         self.seen
-            .is_some_and(|s| s[3 * i..3 * i + 3].iter().any(|&v| v > 0.0))
+            .map(|s| &s[3 * i..3 * i + 3])
+            .filter(|s| s.iter().any(|&v| v > 0.0))
     }
 
     /// Whether pixel i's samples hit a surface: a normal is known there (true without normals).
