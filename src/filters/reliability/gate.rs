@@ -131,36 +131,37 @@ pub fn gate_metered(
         .zip(0..w * h)
         .map(|(r, i)| at_least.map_or(r, |f| r.max(f.data()[i] as f64)))
         .collect();
-    // The raw planes without their margins, copied a row at a time.
-    let raw: Vec<Vec<f64>> = src
-        .planes
-        .iter()
-        .map(|plane| {
-            let mut v = par_vec(0.0, w * h);
-            v.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, row)| {
-                let at = src.index(0, y as isize);
-                row.copy_from_slice(&plane[at..at + w]);
-            });
-            v
-        })
-        .collect();
-    let mut gated: Vec<Vec<f64>> = raw
-        .iter()
-        .zip(centres)
-        .map(|(v, m)| {
-            v.par_iter()
-                .zip(m)
-                .zip(&rho)
-                .map(|((&v, &m), &r)| m + r * (v - m))
-                .collect()
-        })
-        .collect();
+    let mut out = Image::new(w, h, c);
     if p.centre == Centre::Mean {
+        // The raw planes without their margins, copied a row at a time.
+        let raw: Vec<Vec<f64>> = src
+            .planes
+            .iter()
+            .map(|plane| {
+                let mut v = par_vec(0.0, w * h);
+                v.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, row)| {
+                    let at = src.index(0, y as isize);
+                    row.copy_from_slice(&plane[at..at + w]);
+                });
+                v
+            })
+            .collect();
+        let gated: Vec<Vec<f64>> = raw
+            .iter()
+            .zip(centres)
+            .map(|(v, m)| {
+                v.par_iter()
+                    .zip(m)
+                    .zip(&rho)
+                    .map(|((&v, &m), &r)| pull(v, m, r))
+                    .collect()
+            })
+            .collect();
         let reading = Reading {
             rho: &rho,
             along: &along,
         };
-        gated = pull_to_surface_mean(
+        let gated = pull_to_surface_mean(
             &raw,
             &gated,
             reading,
@@ -168,22 +169,45 @@ pub fn gate_metered(
             (p.radius, p.pair_noise),
             meter,
         )?;
+        out.data_mut()
+            .par_chunks_mut(c)
+            .enumerate()
+            .for_each(|(i, px)| {
+                for k in 0..c {
+                    px[k] = from_domain(gated[k][i], domain);
+                }
+                if domain == Domain::Normal {
+                    renormalise(px, img.pixel(i));
+                }
+            });
+    } else {
+        // Straight from the padded planes, a row at a time.
+        out.data_mut()
+            .par_chunks_mut(c * w.max(1))
+            .enumerate()
+            .for_each(|(y, row)| {
+                let at = src.index(0, y as isize);
+                for (x, px) in row.chunks_exact_mut(c).enumerate() {
+                    let i = y * w + x;
+                    for k in 0..c {
+                        let v = pull(src.planes[k][at + x], centres[k][i], rho[i]);
+                        px[k] = from_domain(v, domain);
+                    }
+                    if domain == Domain::Normal {
+                        renormalise(px, img.pixel(i));
+                    }
+                }
+            });
     }
-    let mut out = Image::new(w, h, c);
-    out.data_mut()
-        .par_chunks_mut(c)
-        .enumerate()
-        .for_each(|(i, px)| {
-            for k in 0..c {
-                px[k] = from_domain(gated[k][i], domain);
-            }
-            if domain == Domain::Normal {
-                renormalise(px, img.pixel(i));
-            }
-        });
     let rho = Image::from_vec(w, h, 1, rho.par_iter().map(|&r| r as f32).collect())
         .expect("one value a pixel");
     Ok((out, rho))
+}
+
+/// A value `v` pulled towards its centre `m` by its unreliability: `m + ρ·(v − m)`.
+#[inline(always)]
+fn pull(v: f64, m: f64, rho: f64) -> f64 {
+    m + rho * (v - m)
 }
 
 /// The smallest depth read in log space: relative to the farthest, so the unit of depth does not

@@ -31,50 +31,68 @@ pub(super) fn noise_variance(
     let mut worst = par_vec(0.0f64, w * h);
     let mut near_best = par_vec(f64::INFINITY, w * h);
     let mut along = par_vec(0u8, w * h);
-    let mut sq = par_vec(0.0, w * h);
+    // Each pixel's squared second differences summed along its row over the window's width and
+    // over 3 pixels, reused by every direction: the box means of `box_mean`, in its order of
+    // additions, without a full-image pass and an allocation for each.
+    let mut rows_wide = par_vec(0.0, w * h);
+    let mut rows_near = par_vec(0.0, w * h);
+    let (r, m) = (radius, radius.max(1));
     for (d, (dx, dy)) in DIRECTIONS.into_iter().enumerate() {
         meter.step()?;
-        sq.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-            row.fill(0.0);
-            let (at, ahead, behind) = (
-                src.at(0, y, (0, 0)),
-                src.at(0, y, (dx, dy)),
-                src.at(0, y, (-dx, -dy)),
+        rows_wide
+            .par_chunks_mut(w)
+            .zip(rows_near.par_chunks_mut(w))
+            .enumerate()
+            .for_each_init(
+                || (Vec::new(), Vec::new()),
+                |(sq, line), (y, (wide, near))| {
+                    sq.clear();
+                    sq.resize(w, 0.0);
+                    let (at, ahead, behind) = (
+                        src.at(0, y, (0, 0)),
+                        src.at(0, y, (dx, dy)),
+                        src.at(0, y, (-dx, -dy)),
+                    );
+                    for plane in &src.planes {
+                        let (c, a, b) = (
+                            &plane[at..at + w],
+                            &plane[ahead..ahead + w],
+                            &plane[behind..behind + w],
+                        );
+                        for x in 0..w {
+                            let d = a[x] + b[x] - 2.0 * c[x];
+                            sq[x] += d * d;
+                        }
+                    }
+                    edge_padded_line(line, sq, m);
+                    row_sum(wide, &line[m - r..], r);
+                    row_sum(near, &line[m - 1..], 1);
+                },
             );
-            for plane in &src.planes {
-                let (c, a, b) = (
-                    &plane[at..at + w],
-                    &plane[ahead..ahead + w],
-                    &plane[behind..behind + w],
-                );
-                for x in 0..w {
-                    let d = a[x] + b[x] - 2.0 * c[x];
-                    row[x] += d * d;
-                }
-            }
-        });
         meter.step()?;
-        let mean = box_mean(&sq, (w, h), radius);
-        best.par_iter_mut()
-            .zip(worst.par_iter_mut())
-            .zip(mean.par_iter())
-            .for_each(|((b, wst), &m)| {
-                *b = b.min(m / 6.0);
-                *wst = wst.max(m / 6.0);
-            });
-        meter.step()?;
-        let near = box_mean(&sq, (w, h), 1);
-        near_best
-            .par_iter_mut()
-            .zip(along.par_iter_mut())
-            .zip(near.par_iter())
-            .for_each(|((b, a), &m)| {
-                // Strictly smaller: a tie keeps the earlier direction, the same on every run.
-                if m < *b {
-                    *b = m;
-                    *a = d as u8;
-                }
-            });
+        let (rows_wide, rows_near) = (&rows_wide, &rows_near);
+        best.par_chunks_mut(w)
+            .zip(worst.par_chunks_mut(w))
+            .zip(near_best.par_chunks_mut(w))
+            .zip(along.par_chunks_mut(w))
+            .enumerate()
+            .for_each_init(
+                || (Vec::new(), Vec::new()),
+                |(wide, near), (y, (((b, wst), nb), a))| {
+                    column_mean(wide, rows_wide, (w, h), y, r);
+                    column_mean(near, rows_near, (w, h), y, 1);
+                    for x in 0..w {
+                        let m = wide[x];
+                        b[x] = b[x].min(m / 6.0);
+                        wst[x] = wst[x].max(m / 6.0);
+                        // Strictly smaller: a tie keeps the earlier direction, the same on every run.
+                        if near[x] < nb[x] {
+                            nb[x] = near[x];
+                            a[x] = d as u8;
+                        }
+                    }
+                },
+            );
     }
     // No direction where the window varies alike in all four (noise, or a texture with no grain).
     along
@@ -88,62 +106,206 @@ pub(super) fn noise_variance(
     Ok((best, along))
 }
 
-/// The variance over every pixel's window of the channels' medians, summed over the channels.
+/// The variance over every pixel's window of the channels' medians, summed over the channels: the
+/// window mean of the squares (summed over the channels) less each channel's squared window mean,
+/// each window mean as [`box_mean`] adds it, the row sums of every plane taken in one pass.
 pub(super) fn signal_variance(
     medians: &[Vec<f64>],
     (w, h): (usize, usize),
     radius: usize,
     meter: &Meter,
 ) -> Result<Vec<f64>> {
-    let mut squares = par_vec(0.0, w * h);
-    for m in medians {
-        squares
-            .par_iter_mut()
-            .zip(m.par_iter())
-            .for_each(|(s, &v)| *s += v * v);
+    let c = medians.len();
+    meter.step()?;
+    // Row sums: the squares' first, then each channel's.
+    let mut rows: Vec<Vec<f64>> = (0..=c).map(|_| par_vec(0.0, w * h)).collect();
+    {
+        let mut chunks: Vec<_> = rows.iter_mut().map(|r| r.chunks_mut(w)).collect();
+        let per_row: Vec<Vec<&mut [f64]>> = (0..h)
+            .map(|_| {
+                chunks
+                    .iter_mut()
+                    .map(|c| c.next().expect("h rows"))
+                    .collect()
+            })
+            .collect();
+        per_row.into_par_iter().enumerate().for_each_init(
+            || (Vec::new(), Vec::new()),
+            |(squares, line), (y, mut outs)| {
+                let at = y * w;
+                squares.clear();
+                squares.resize(w, 0.0);
+                for m in medians {
+                    for (s, &v) in squares.iter_mut().zip(&m[at..at + w]) {
+                        *s += v * v;
+                    }
+                }
+                edge_padded_line(line, squares, radius);
+                row_sum(outs[0], line, radius);
+                for (m, out) in medians.iter().zip(outs.iter_mut().skip(1)) {
+                    edge_padded_line(line, &m[at..at + w], radius);
+                    row_sum(out, line, radius);
+                }
+            },
+        );
     }
     meter.step()?;
-    let mut var = box_mean(&squares, (w, h), radius);
-    for m in medians {
-        meter.step()?;
-        let mean = box_mean(m, (w, h), radius);
-        var.par_iter_mut()
-            .zip(mean.par_iter())
-            .for_each(|(v, &m)| *v -= m * m);
-    }
-    var.par_iter_mut().for_each(|v| *v = v.max(0.0));
+    let mut var = par_vec(0.0, w * h);
+    var.par_chunks_mut(w).enumerate().for_each_init(
+        || (Vec::new(), Vec::new()),
+        |(sum, mean), (y, var)| {
+            column_mean(sum, &rows[0], (w, h), y, radius);
+            for plane in &rows[1..] {
+                column_mean(mean, plane, (w, h), y, radius);
+                for (s, &m) in sum.iter_mut().zip(mean.iter()) {
+                    *s -= m * m;
+                }
+            }
+            for (v, &s) in var.iter_mut().zip(sum.iter()) {
+                *v = s.max(0.0);
+            }
+        },
+    );
     Ok(var)
 }
 
 /// The mean of every pixel's (2r+1)² window, edges replicated: along the rows (a row copied with
 /// r edge cells each side), then down the columns (whole rows added, clamped at the edges).
 pub(super) fn box_mean(v: &[f64], (w, h): (usize, usize), radius: usize) -> Vec<f64> {
-    let n = (2 * radius + 1) as f64;
     let mut rows = par_vec(0.0, w * h);
     // One padded line per worker, not one allocation per row.
     rows.par_chunks_mut(w)
         .enumerate()
         .for_each_init(Vec::new, |line, (y, out)| {
-            let src = &v[y * w..(y + 1) * w];
-            edge_padded_line(line, src, radius);
-            for t in 0..=2 * radius {
-                for (o, &s) in out.iter_mut().zip(&line[t..t + w]) {
-                    *o += s;
-                }
-            }
+            edge_padded_line(line, &v[y * w..(y + 1) * w], radius);
+            row_sum(out, line, radius);
         });
     let mut out = par_vec(0.0, w * h);
+    out.par_chunks_mut(w)
+        .enumerate()
+        .for_each_init(Vec::new, |sum, (y, out)| {
+            column_mean(sum, &rows, (w, h), y, radius);
+            out.copy_from_slice(sum);
+        });
+    out
+}
+
+/// `out[x]`: the sum of `line[x..=x + 2r]`, added in that order from 0.
+fn row_sum(out: &mut [f64], line: &[f64], radius: usize) {
+    let w = out.len();
+    out.fill(0.0);
+    for t in 0..=2 * radius {
+        for (o, &s) in out.iter_mut().zip(&line[t..t + w]) {
+            *o += s;
+        }
+    }
+}
+
+/// Into `out` (resized to a row), row y's mean over rows y − r … y + r of `rows` (row sums over
+/// 2r + 1 pixels), rows clamped at the edges, added in that order from 0.
+fn column_mean(out: &mut Vec<f64>, rows: &[f64], (w, h): (usize, usize), y: usize, radius: usize) {
+    let n = (2 * radius + 1) as f64;
     let r = radius as isize;
-    out.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
+    out.clear();
+    out.resize(w, 0.0);
+    for dy in -r..=r {
+        let yy = (y as isize + dy).clamp(0, h as isize - 1) as usize;
+        for (o, &s) in out.iter_mut().zip(&rows[yy * w..(yy + 1) * w]) {
+            *o += s;
+        }
+    }
+    for o in out.iter_mut() {
+        *o /= n * n;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kernels::padded::Margin;
+
+    /// The window mean of `f` at (x, y) pixel by pixel, coordinates clamped, in the fused passes'
+    /// order of additions (each row's sum, then the rows down the window).
+    fn window_mean(
+        f: impl Fn(usize, usize) -> f64,
+        (w, h): (usize, usize),
+        (x, y): (usize, usize),
+        r: usize,
+    ) -> f64 {
+        let (r, n) = (r as isize, (2 * r + 1) as f64);
+        let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
+        let mut sum = 0.0;
         for dy in -r..=r {
-            let yy = (y as isize + dy).clamp(0, h as isize - 1) as usize;
-            for (o, &s) in out.iter_mut().zip(&rows[yy * w..(yy + 1) * w]) {
-                *o += s;
+            let mut row = 0.0;
+            for dx in -r..=r {
+                row += f(clamp(x as isize + dx, w), clamp(y as isize + dy, h));
+            }
+            sum += row;
+        }
+        sum / (n * n)
+    }
+
+    #[test]
+    fn the_fused_passes_give_the_per_pixel_variances_bit_for_bit() {
+        for (w, h) in [(1, 1), (2, 5), (7, 3), (13, 11)] {
+            let value = |i: usize, k: usize| ((i * 37 + k * 11) % 17) as f64 / 8.0 - 0.9;
+            let src = Padded::new((w, h), 2, 2, Margin::Edge, value);
+            let meter = Meter::default();
+            for radius in [1, 3] {
+                let (noise, along) = noise_variance(&src, (w, h), radius, &meter).unwrap();
+                let medians: Vec<Vec<f64>> = (0..2)
+                    .map(|k| (0..w * h).map(|i| value(i, k) * 0.5).collect())
+                    .collect();
+                let signal = signal_variance(&medians, (w, h), radius, &meter).unwrap();
+                for (i, ((&n, &a), &s)) in noise.iter().zip(&along).zip(&signal).enumerate() {
+                    let (x, y) = (i % w, i / w);
+                    let (mut best, mut worst, mut near, mut dir) =
+                        (f64::INFINITY, 0.0f64, f64::INFINITY, 0);
+                    for (d, (dx, dy)) in DIRECTIONS.into_iter().enumerate() {
+                        let sq = |x: usize, y: usize| -> f64 {
+                            src.planes
+                                .iter()
+                                .map(|p| {
+                                    let e = p[src.at(x, y, (dx, dy))] + p[src.at(x, y, (-dx, -dy))]
+                                        - 2.0 * p[src.at(x, y, (0, 0))];
+                                    e * e
+                                })
+                                .fold(0.0, |a, b| a + b)
+                        };
+                        let m = window_mean(sq, (w, h), (x, y), radius) / 6.0;
+                        best = best.min(m);
+                        worst = worst.max(m);
+                        let m1 = window_mean(sq, (w, h), (x, y), 1);
+                        if m1 < near {
+                            near = m1;
+                            dir = d as u8;
+                        }
+                    }
+                    if best >= ISOTROPIC * worst {
+                        dir = NO_DIRECTION;
+                    }
+                    assert_eq!(
+                        (n.to_bits(), a),
+                        (best.to_bits(), dir),
+                        "{w}x{h} r{radius} ({x}, {y})"
+                    );
+                    let squares = |x: usize, y: usize| {
+                        medians
+                            .iter()
+                            .fold(0.0, |a, m| a + m[y * w + x] * m[y * w + x])
+                    };
+                    let mut var = window_mean(squares, (w, h), (x, y), radius);
+                    for m in &medians {
+                        let mean = window_mean(|x, y| m[y * w + x], (w, h), (x, y), radius);
+                        var -= mean * mean;
+                    }
+                    assert_eq!(
+                        s.to_bits(),
+                        var.max(0.0).to_bits(),
+                        "{w}x{h} r{radius} ({x}, {y})"
+                    );
+                }
             }
         }
-        for o in out.iter_mut() {
-            *o /= n * n;
-        }
-    });
-    out
+    }
 }
