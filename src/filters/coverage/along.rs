@@ -67,14 +67,15 @@ pub fn along_edges(
                 let i = y * w + x;
                 let px = &mut row[3 * x..3 * x + 3];
                 px.copy_from_slice(&c[3 * i..3 * i + 3]);
-                let var = pixel_variance(&v[3 * i..3 * i + 3]);
                 let pos = (x as f32, y as f32);
-                let noise = match gate {
-                    Gate::Noise => 0.0,
-                    Gate::Scatter => guide_noise(&c[3 * i..3 * i + 3], &v[3 * i..3 * i + 3]),
-                };
+                // The colour's guide noise only where the scatter gate asks for it.
+                let noise = || guide_noise(&c[3 * i..3 * i + 3], &v[3 * i..3 * i + 3]);
                 let share = jump_share(guide, pos, normals[i], reach, (gate, noise), scratch);
-                if share <= 0.0 || var <= 0.0 {
+                if share <= 0.0 {
+                    continue;
+                }
+                let var = pixel_variance(&v[3 * i..3 * i + 3]);
+                if var <= 0.0 {
                     continue;
                 }
                 let (mean, scatter) = mean_along(&planes, (w, h), pos, normals[i], reach);
@@ -158,7 +159,7 @@ fn jump_share(
     (x, y): (f32, f32),
     (nx, ny): (f32, f32),
     reach: usize,
-    (gate, noise): (Gate, f64),
+    (gate, noise): (Gate, impl Fn() -> f64),
     scratch: &mut [f32],
 ) -> f64 {
     let g = guide.planes.len();
@@ -196,7 +197,7 @@ fn jump_share(
                 (x, y),
                 (nx, ny),
                 reach,
-                (contrast, noise),
+                (contrast, noise()),
             ))
     {
         return 0.0;
