@@ -183,15 +183,20 @@ const SYMMETRIC: f64 = 0.1;
 /// `var`. Where the local estimate reads a reflection's or a refraction's structure as noise, a
 /// dark pixel beside a highlight takes the highlight's light through the filter and `var` lets it.
 pub(super) fn leak_variance(level: &NoiseLevel, (c, f): (&[f32], &[f32]), var: f64) -> f64 {
+    // The rise first: it is cheap, and a pixel the filter made darker keeps `var` whatever the
+    // level (about half of them).
+    let rise: f64 = (0..3).map(|k| f[k] as f64 - c[k] as f64).sum();
+    if !(rise > 0.0) {
+        return var;
+    }
     let cap = level.at(f);
     if cap.partial_cmp(&var) != Some(std::cmp::Ordering::Less) {
         return var;
     }
-    let rise: f64 = (0..3).map(|k| f[k] as f64 - c[k] as f64).sum();
     // Both the input's and the filtered brightness: an input of a few samples that all missed
     // the light (0, or far below its mean) is the skew itself, whatever the filtered value.
     let bright = ln_luminance(f).min(ln_luminance(c)).exp();
-    if rise > 0.0 && cap.sqrt() < SYMMETRIC * bright {
+    if cap.sqrt() < SYMMETRIC * bright {
         cap
     } else {
         var
