@@ -133,8 +133,9 @@ pub(super) fn pull_to_surface_mean(
             }
         }
     });
+    // Back to one plane a channel, in parallel.
     Ok((0..c)
-        .map(|k| (0..w * h).map(|i| flat[i * c + k]).collect())
+        .map(|k| flat.par_chunks(c).map(|px| px[k]).collect())
         .collect())
 }
 
