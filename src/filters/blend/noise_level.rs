@@ -186,7 +186,7 @@ pub(super) fn leak_variance(level: &NoiseLevel, (c, f): (&[f32], &[f32]), var: f
     // The rise first: it is cheap, and a pixel the filter made darker keeps `var` whatever the
     // level (about half of them).
     let rise: f64 = (0..3).map(|k| f[k] as f64 - c[k] as f64).sum();
-    if !(rise > 0.0) {
+    if rise.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return var;
     }
     let cap = level.at(f);
