@@ -172,14 +172,7 @@ pub fn gate_metered(
         out.data_mut()
             .par_chunks_mut(c)
             .enumerate()
-            .for_each(|(i, px)| {
-                for k in 0..c {
-                    px[k] = from_domain(gated[k][i], domain);
-                }
-                if domain == Domain::Normal {
-                    renormalise(px, img.pixel(i));
-                }
-            });
+            .for_each(|(i, px)| write_pixel(px, |k| gated[k][i], domain, img.pixel(i)));
     } else {
         // Straight from the padded planes, a row at a time.
         out.data_mut()
@@ -189,19 +182,26 @@ pub fn gate_metered(
                 let at = src.index(0, y as isize);
                 for (x, px) in row.chunks_exact_mut(c).enumerate() {
                     let i = y * w + x;
-                    for k in 0..c {
-                        let v = pull(src.planes[k][at + x], centres[k][i], rho[i]);
-                        px[k] = from_domain(v, domain);
-                    }
-                    if domain == Domain::Normal {
-                        renormalise(px, img.pixel(i));
-                    }
+                    let value = |k: usize| pull(src.planes[k][at + x], centres[k][i], rho[i]);
+                    write_pixel(px, value, domain, img.pixel(i));
                 }
             });
     }
     let rho = Image::from_vec(w, h, 1, rho.par_iter().map(|&r| r as f32).collect())
         .expect("one value a pixel");
     Ok((out, rho))
+}
+
+/// One output pixel: channel k's gated `value(k)` back from the domain, a normal renormalised
+/// against its `input`.
+#[inline(always)]
+fn write_pixel(px: &mut [f32], value: impl Fn(usize) -> f64, domain: Domain, input: &[f32]) {
+    for (k, v) in px.iter_mut().enumerate() {
+        *v = from_domain(value(k), domain);
+    }
+    if domain == Domain::Normal {
+        renormalise(px, input);
+    }
 }
 
 /// A value `v` pulled towards its centre `m` by its unreliability: `m + ρ·(v − m)`.

@@ -108,47 +108,26 @@ pub(super) fn noise_variance(
 
 /// The variance over every pixel's window of the channels' medians, summed over the channels: the
 /// window mean of the squares (summed over the channels) less each channel's squared window mean,
-/// each window mean as [`box_mean`] adds it, the row sums of every plane taken in one pass.
+/// each window mean as [`box_mean`] adds it, in one column pass over all the row sums.
 pub(super) fn signal_variance(
     medians: &[Vec<f64>],
     (w, h): (usize, usize),
     radius: usize,
     meter: &Meter,
 ) -> Result<Vec<f64>> {
-    let c = medians.len();
+    let mut squares = par_vec(0.0, w * h);
+    for m in medians {
+        squares
+            .par_iter_mut()
+            .zip(m.par_iter())
+            .for_each(|(s, &v)| *s += v * v);
+    }
     meter.step()?;
     // Row sums: the squares' first, then each channel's.
-    let mut rows: Vec<Vec<f64>> = (0..=c).map(|_| par_vec(0.0, w * h)).collect();
-    {
-        let mut chunks: Vec<_> = rows.iter_mut().map(|r| r.chunks_mut(w)).collect();
-        let per_row: Vec<Vec<&mut [f64]>> = (0..h)
-            .map(|_| {
-                chunks
-                    .iter_mut()
-                    .map(|c| c.next().expect("h rows"))
-                    .collect()
-            })
-            .collect();
-        per_row.into_par_iter().enumerate().for_each_init(
-            || (Vec::new(), Vec::new()),
-            |(squares, line), (y, mut outs)| {
-                let at = y * w;
-                squares.clear();
-                squares.resize(w, 0.0);
-                for m in medians {
-                    for (s, &v) in squares.iter_mut().zip(&m[at..at + w]) {
-                        *s += v * v;
-                    }
-                }
-                edge_padded_line(line, squares, radius);
-                row_sum(outs[0], line, radius);
-                for (m, out) in medians.iter().zip(outs.iter_mut().skip(1)) {
-                    edge_padded_line(line, &m[at..at + w], radius);
-                    row_sum(out, line, radius);
-                }
-            },
-        );
-    }
+    let rows: Vec<Vec<f64>> = std::iter::once(&squares)
+        .chain(medians)
+        .map(|plane| row_sums(plane, w, radius))
+        .collect();
     meter.step()?;
     let mut var = par_vec(0.0, w * h);
     var.par_chunks_mut(w).enumerate().for_each_init(
@@ -172,14 +151,7 @@ pub(super) fn signal_variance(
 /// The mean of every pixel's (2r+1)² window, edges replicated: along the rows (a row copied with
 /// r edge cells each side), then down the columns (whole rows added, clamped at the edges).
 pub(super) fn box_mean(v: &[f64], (w, h): (usize, usize), radius: usize) -> Vec<f64> {
-    let mut rows = par_vec(0.0, w * h);
-    // One padded line per worker, not one allocation per row.
-    rows.par_chunks_mut(w)
-        .enumerate()
-        .for_each_init(Vec::new, |line, (y, out)| {
-            edge_padded_line(line, &v[y * w..(y + 1) * w], radius);
-            row_sum(out, line, radius);
-        });
+    let rows = row_sums(v, w, radius);
     let mut out = par_vec(0.0, w * h);
     out.par_chunks_mut(w)
         .enumerate()
@@ -188,6 +160,19 @@ pub(super) fn box_mean(v: &[f64], (w, h): (usize, usize), radius: usize) -> Vec<
             out.copy_from_slice(sum);
         });
     out
+}
+
+/// Every pixel's sum over its row's 2r + 1 pixels, edges replicated ([`row_sum`] a row).
+fn row_sums(v: &[f64], w: usize, radius: usize) -> Vec<f64> {
+    let mut rows = par_vec(0.0, v.len());
+    // One padded line per worker, not one allocation per row.
+    rows.par_chunks_mut(w)
+        .enumerate()
+        .for_each_init(Vec::new, |line, (y, out)| {
+            edge_padded_line(line, &v[y * w..(y + 1) * w], radius);
+            row_sum(out, line, radius);
+        });
+    rows
 }
 
 /// `out[x]`: the sum of `line[x..=x + 2r]`, added in that order from 0.
