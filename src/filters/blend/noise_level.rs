@@ -53,6 +53,29 @@ fn ln_luminance(p: &[f32]) -> f64 {
     }
 }
 
+/// The order of (ln luminance, variance) pairs: by brightness, ties by variance.
+fn by_pair(a: &(f64, f64), b: &(f64, f64)) -> std::cmp::Ordering {
+    a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1))
+}
+
+/// Reorders `pairs` so that each run between consecutive `bounds` (increasing indices inside it)
+/// holds the pairs a sort by [`by_pair`] would put there: the middle bound selected, then both
+/// sides in parallel.
+fn into_bins(pairs: &mut [(f64, f64)], bounds: &[usize]) {
+    if bounds.is_empty() {
+        return;
+    }
+    let mid = bounds.len() / 2;
+    let at = bounds[mid];
+    pairs.select_nth_unstable_by(at, by_pair);
+    let (left, right) = pairs.split_at_mut(at);
+    let above: Vec<usize> = bounds[mid + 1..].iter().map(|b| b - at).collect();
+    rayon::join(
+        || into_bins(left, &bounds[..mid]),
+        || into_bins(right, &above),
+    );
+}
+
 /// The `q` quantile of `values` (linear between order statistics, as numpy's default), which it
 /// reorders.
 fn quantile(values: &mut [f64], q: f64) -> f64 {
@@ -90,13 +113,17 @@ impl NoiseLevel {
         if n / BINS < MIN_BIN {
             return None;
         }
-        // Ties in both keys are equal pairs: the order is the same whatever the threads.
-        pairs.par_sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
+        // Each bin holds the pixels a sort would put there, in some order: only the bins'
+        // boundaries and middles are ever read, so they are selected, not the whole image sorted.
+        // Ties in both keys are equal pairs: the bins are the same whatever the threads.
+        let bounds: Vec<usize> = (1..BINS).map(|k| k * n / BINS).collect();
+        into_bins(&mut pairs, &bounds);
         let mut centres: Vec<f64> = Vec::with_capacity(BINS);
         let mut ranges: Vec<(usize, usize)> = Vec::with_capacity(BINS);
         for k in 0..BINS {
             let (start, end) = (k * n / BINS, (k + 1) * n / BINS);
-            let centre = pairs[(start + end) / 2].0;
+            let (_, &mut (centre, _), _) =
+                pairs[start..end].select_nth_unstable_by((end - start) / 2, by_pair);
             // Bins of one brightness (a black background) are one reading.
             match (centres.last(), ranges.last_mut()) {
                 (Some(&last), Some(range)) if last == centre => range.1 = end,
@@ -250,5 +277,66 @@ mod tests {
         assert!(level.at(&[f32::NAN; 3]).is_finite());
         let small = Image::filled(18, 18, 3, 1.0);
         assert_eq!(NoiseLevel::fit(&small, &small, 0.5), None);
+    }
+
+    /// The fit as it was made before the bins were selected: the whole image sorted.
+    fn sorted_fit(filtered: &Image, variance: &Image, q: f64) -> NoiseLevel {
+        let mut pairs: Vec<(f64, f64)> = (0..filtered.pixel_count())
+            .map(|i| {
+                let v = pixel_variance(variance.pixel(i));
+                (ln_luminance(filtered.pixel(i)), v)
+            })
+            .collect();
+        pairs.sort_by(by_pair);
+        let n = pairs.len();
+        let (mut centres, mut ranges): (Vec<f64>, Vec<(usize, usize)>) = (vec![], vec![]);
+        for k in 0..BINS {
+            let (start, end) = (k * n / BINS, (k + 1) * n / BINS);
+            let centre = pairs[(start + end) / 2].0;
+            match (centres.last(), ranges.last_mut()) {
+                (Some(&last), Some(range)) if last == centre => range.1 = end,
+                _ => {
+                    centres.push(centre);
+                    ranges.push((start, end));
+                }
+            }
+        }
+        let levels = ranges
+            .iter()
+            .map(|&(start, end)| {
+                let mut v: Vec<f64> = pairs[start..end].iter().map(|p| p.1).collect();
+                quantile(&mut v, q).max(f64::MIN_POSITIVE).ln()
+            })
+            .collect();
+        NoiseLevel { centres, levels }
+    }
+
+    #[test]
+    fn selected_bins_read_the_same_levels_as_a_sort() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand::rngs::Xoshiro256PlusPlus::seed_from_u64(7);
+        for (w, h) in [(17, 20), (40, 33), (101, 57)] {
+            // A black background (one brightness, ties), a few brightness levels repeated, and
+            // a continuum.
+            let lum = |rng: &mut rand::rngs::Xoshiro256PlusPlus| match rng.random_range(0..4) {
+                0 => 0.0,
+                1 => [0.25f32, 0.5][rng.random_range(0..2)],
+                _ => rng.random::<f32>() * 4.0,
+            };
+            let mut f = Image::new(w, h, 3);
+            for px in f.data_mut().chunks_exact_mut(3) {
+                px.fill(lum(&mut rng));
+            }
+            // Noise that grows with brightness, so the pixel at a bin's edge is its extreme.
+            let mut variance = f.clone();
+            for px in variance.data_mut().chunks_exact_mut(3) {
+                let v = 1e-3 * px[0] + [0.0, 1e-6][rng.random_range(0..2)];
+                px.fill(v);
+            }
+            for q in [0.0, 0.5, 0.75, 1.0] {
+                let got = NoiseLevel::fit(&f, &variance, q).unwrap();
+                assert_eq!(got, sorted_fit(&f, &variance, q), "{w}x{h} q {q}");
+            }
+        }
     }
 }
