@@ -1,5 +1,6 @@
-//! Quality on the Mitsuba Cornell box, scored by the project's protocol.
-//! These are the acceptance orderings; numbers are in README.md.
+//! Quality on the fixtures, scored by the project's protocol: the Mitsuba Cornell box, the folder
+//! fixtures' preset order and `balanced`'s rule on a Blender render. The acceptance orderings;
+//! numbers are in README.md.
 
 use std::path::Path;
 
