@@ -96,13 +96,14 @@ fn full_beats_single_scale_gsid_at_very_low_spp_and_holds_at_64() {
     }
 }
 
-/// The presets keep the order they were chosen for (docs/RESULTS.md "Presets"): on the mean over the fixtures at
-/// 4 spp more time buys more SSIM; on every fixture `balanced` (2 walks, the prefilter) beats `fast` (1 walk) and every
-/// preset is far better than the input. `quality` against `balanced` is only a mean property: on
+/// The presets keep the order they were chosen for (docs/RESULTS.md "Presets"): on the mean over the
+/// fixtures at 4 spp more time buys more SSIM (`quality` is `full` with more walks and a wider window,
+/// so at least as good); on every fixture `balanced` (2 walks, the prefilter) beats `fast` (1 walk)
+/// and every preset is far better than the input. `quality` against `balanced` is only a mean property: on
 /// `caustics` the single-scale `balanced` scores 0.002 above it.
 #[test]
 fn presets_trade_time_for_quality_in_order() {
-    let mut means = [0.0f64; 3];
+    let mut means = [0.0f64; 4];
     for f in FIXTURES {
         let input = {
             let dir = format!("fixtures/{f}/spp4");
@@ -110,8 +111,8 @@ fn presets_trade_time_for_quality_in_order() {
             let reference = io::read_image(set.reference.as_ref().unwrap(), 3).unwrap();
             metrics::ssim(&set.set.color, &reference).unwrap()
         };
-        let scores = ["fast", "balanced", "quality"].map(|p| scores_of(p, f, 4).ssim);
-        let [fast, balanced, quality] = scores;
+        let scores = ["fast", "balanced", "full", "quality"].map(|p| scores_of(p, f, 4).ssim);
+        let [fast, balanced, _, quality] = scores;
         assert!(
             balanced > fast && fast > input + 0.15 && quality > input + 0.15,
             "{f}: quality {quality:.4}, balanced {balanced:.4}, fast {fast:.4}, input {input:.4}"
@@ -120,10 +121,10 @@ fn presets_trade_time_for_quality_in_order() {
             *m += s / FIXTURES.len() as f64;
         }
     }
-    let [fast, balanced, quality] = means;
+    let [fast, balanced, full, quality] = means;
     assert!(
-        quality >= balanced && balanced > fast,
-        "means: quality {quality:.4}, balanced {balanced:.4}, fast {fast:.4}"
+        quality >= full && full >= balanced && balanced > fast,
+        "means: quality {quality:.4}, full {full:.4}, balanced {balanced:.4}, fast {fast:.4}"
     );
 }
 
