@@ -118,12 +118,25 @@ impl NoiseLevel {
         // Ties in both keys are equal pairs: the bins are the same whatever the threads.
         let bounds: Vec<usize> = (1..BINS).map(|k| k * n / BINS).collect();
         into_bins(&mut pairs, &bounds);
+        Some(Self::from_bins(&mut pairs, q, |bin| {
+            let (_, middle, _) = bin.select_nth_unstable_by(bin.len() / 2, by_pair);
+            middle.0
+        }))
+    }
+
+    /// The function at quantile `q` from `pairs` already in their bins (the run from k·n/BINS to
+    /// (k+1)·n/BINS holds bin k's pairs, in any order), `centre` reading a bin's middle brightness.
+    fn from_bins(
+        pairs: &mut [(f64, f64)],
+        q: f64,
+        mut centre: impl FnMut(&mut [(f64, f64)]) -> f64,
+    ) -> NoiseLevel {
+        let n = pairs.len();
         let mut centres: Vec<f64> = Vec::with_capacity(BINS);
         let mut ranges: Vec<(usize, usize)> = Vec::with_capacity(BINS);
         for k in 0..BINS {
             let (start, end) = (k * n / BINS, (k + 1) * n / BINS);
-            let (_, &mut (centre, _), _) =
-                pairs[start..end].select_nth_unstable_by((end - start) / 2, by_pair);
+            let centre = centre(&mut pairs[start..end]);
             // Bins of one brightness (a black background) are one reading.
             match (centres.last(), ranges.last_mut()) {
                 (Some(&last), Some(range)) if last == centre => range.1 = end,
@@ -140,7 +153,7 @@ impl NoiseLevel {
                 quantile(&mut v, q).max(f64::MIN_POSITIVE).ln()
             })
             .collect();
-        Some(NoiseLevel { centres, levels })
+        NoiseLevel { centres, levels }
     }
 
     /// The function's variance at the brightness of filtered pixel `f`: held at the end bins'
@@ -288,27 +301,8 @@ mod tests {
             })
             .collect();
         pairs.sort_by(by_pair);
-        let n = pairs.len();
-        let (mut centres, mut ranges): (Vec<f64>, Vec<(usize, usize)>) = (vec![], vec![]);
-        for k in 0..BINS {
-            let (start, end) = (k * n / BINS, (k + 1) * n / BINS);
-            let centre = pairs[(start + end) / 2].0;
-            match (centres.last(), ranges.last_mut()) {
-                (Some(&last), Some(range)) if last == centre => range.1 = end,
-                _ => {
-                    centres.push(centre);
-                    ranges.push((start, end));
-                }
-            }
-        }
-        let levels = ranges
-            .iter()
-            .map(|&(start, end)| {
-                let mut v: Vec<f64> = pairs[start..end].iter().map(|p| p.1).collect();
-                quantile(&mut v, q).max(f64::MIN_POSITIVE).ln()
-            })
-            .collect();
-        NoiseLevel { centres, levels }
+        // Sorted, every bin is in place, and its middle is the sorted order's (start + end) / 2.
+        NoiseLevel::from_bins(&mut pairs, q, |bin| bin[bin.len() / 2].0)
     }
 
     #[test]
