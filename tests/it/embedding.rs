@@ -4,8 +4,9 @@
 //!
 //! They need what `.ci/run` builds before `cargo test`: the C library
 //! (`cargo build -p gsid-capi --profile ci-embed` there, found at `GSID_CAPI_LIB`; by default
-//! target/embed/libgsid.a, from `--profile embed`) and a venv with the package installed (`GSID_CI_VENV`). Without them
-//! each test prints "skipped: ..." and passes, except under `CI=true`, where it fails.
+//! target/embed/libgsid.a, from `--profile embed`) and a venv with the package installed
+//! (`GSID_CI_VENV`). Without them each test prints "skipped: ..." and passes, except under
+//! `CI=true`, where it fails.
 
 use crate::common;
 use std::path::{Path, PathBuf};
