@@ -29,36 +29,45 @@ fn filter() -> fr::FilterType {
     )
 }
 
-fn pixel_type(channels: usize) -> Result<fr::PixelType> {
-    match channels {
-        1 => Ok(fr::PixelType::F32),
-        2 => Ok(fr::PixelType::F32x2),
-        3 => Ok(fr::PixelType::F32x3),
-        4 => Ok(fr::PixelType::F32x4),
-        c => Err(Error::Usage(format!("cannot resample a {c}-channel image"))),
-    }
-}
-
 /// Resamples `img` to `w × h` with the pyramid Gaussian.
 pub fn resample(img: &Image, w: usize, h: usize) -> Result<Image> {
     if img.dims() == (w, h) {
         return Ok(img.clone());
     }
-    let pt = pixel_type(img.channels())?;
-    let src = fr::images::ImageRef::new(
+    // One typed instance per channel count: `Resizer::resize` dispatches on the pixel type at run
+    // time and so compiles every pixel type the crate knows (u8, u16, i32 …), most of this crate's
+    // generated code for four types it uses. `resize` calls `resize_typed` itself: the same bits.
+    let mut data = vec![0.0f32; w * h * img.channels()];
+    match img.channels() {
+        1 => resample_typed::<fr::pixels::F32>(img, w, h, &mut data)?,
+        2 => resample_typed::<fr::pixels::F32x2>(img, w, h, &mut data)?,
+        3 => resample_typed::<fr::pixels::F32x3>(img, w, h, &mut data)?,
+        4 => resample_typed::<fr::pixels::F32x4>(img, w, h, &mut data)?,
+        c => return Err(Error::Usage(format!("cannot resample a {c}-channel image"))),
+    }
+    Image::from_vec(w, h, img.channels(), data)
+}
+
+fn resample_typed<P: fr::PixelTrait>(
+    img: &Image,
+    w: usize,
+    h: usize,
+    out: &mut [f32],
+) -> Result<()> {
+    let fail = |e: &dyn std::fmt::Display| Error::Runtime(format!("resample: {e}"));
+    let src = fr::images::TypedImageRef::<P>::from_buffer(
         img.width() as u32,
         img.height() as u32,
         bytemuck::cast_slice(img.data()),
-        pt,
     )
-    .map_err(|e| Error::Runtime(format!("resample: {e}")))?;
-    let mut dst = fr::images::Image::new(w as u32, h as u32, pt);
+    .map_err(|e| fail(&e))?;
+    let mut dst =
+        fr::images::TypedImage::<P>::from_buffer(w as u32, h as u32, bytemuck::cast_slice_mut(out))
+            .map_err(|e| fail(&e))?;
     let options = fr::ResizeOptions::new().resize_alg(fr::ResizeAlg::Convolution(filter()));
     fr::Resizer::new()
-        .resize(&src, &mut dst, &options)
-        .map_err(|e| Error::Runtime(format!("resample: {e}")))?;
-    let data: Vec<f32> = bytemuck::cast_slice(dst.buffer()).to_vec();
-    Image::from_vec(w, h, img.channels(), data)
+        .resize_typed(&src, &mut dst, &options)
+        .map_err(|e| fail(&e))
 }
 
 /// Size of the next coarser level.
