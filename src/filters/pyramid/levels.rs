@@ -220,6 +220,27 @@ pub(crate) mod tests {
     }
 
     #[test]
+    fn every_channel_count_resamples_each_channel_on_its_own() {
+        // Channel k of every pixel is constant k + 1: a pixel type mapped to the wrong channel
+        // count would mix channels or fail. Sizes from 1×1 and odd, up and down.
+        for c in 1..=4 {
+            for (w, h, nw, nh) in [(1, 1, 3, 2), (7, 5, 4, 3), (9, 4, 17, 8)] {
+                let img = Image::from_fn(w, h, c, |_, _, k| k as f32 + 1.0);
+                let out = resample(&img, nw, nh).unwrap();
+                assert_eq!((out.dims(), out.channels()), ((nw, nh), c));
+                for px in out.data().chunks_exact(c) {
+                    for (k, &v) in px.iter().enumerate() {
+                        assert!((v - (k as f32 + 1.0)).abs() < 1e-5, "{c} channels: {px:?}");
+                    }
+                }
+            }
+        }
+        let five = Image::new(4, 4, 5);
+        let err = resample(&five, 2, 2).unwrap_err().to_string();
+        assert!(err.contains("5-channel"), "{err}");
+    }
+
+    #[test]
     fn depth_reduce_picks_the_nearest_surface() {
         let d = Image::from_vec(3, 1, 1, vec![5.0, 1.0, 9.0]).unwrap();
         assert_eq!(reduce_min(&d).data(), &[1.0, 9.0]);
