@@ -34,6 +34,7 @@ fn keep(color: &Image, filtered: &Image, variance: &Image, q: f64) -> Vec<f32> {
         (color, filtered, variance),
         &FeatureSet::default(),
         (2.0, 4.0, q, 0.0),
+        None,
         &Meter::default(),
     )
 }
@@ -191,6 +192,7 @@ fn a_pixel_without_surface_mates_keeps_its_own_estimate() {
             (&color, &filtered, &variance),
             &set,
             (2.0, 4.0, q, 0.0),
+            None,
             &Meter::default(),
         )
     };

@@ -42,12 +42,22 @@ pub(super) fn lit_beside_highlight(dark: f32) -> (Image, Image, Image) {
 }
 
 /// The blend's keep weights (tolerance 2, leak 4, no noise-level cap) with `leak_level` `q`.
-fn keep((color, filtered, variance): &(Image, Image, Image), q: f64) -> Vec<f32> {
+fn keep(case: &(Image, Image, Image), q: f64) -> Vec<f32> {
+    keep_with(case, q, None)
+}
+
+/// [`keep`] with the albedo's reliability `rho` (one value a pixel) when one is given.
+fn keep_with(
+    (color, filtered, variance): &(Image, Image, Image),
+    q: f64,
+    rho: Option<&[f32]>,
+) -> Vec<f32> {
     keep_weights_metered(
         Kernel::detect(),
         (color, filtered, variance),
         &FeatureSet::default(),
         (2.0, 4.0, 0.0, q),
+        rho,
         &Meter::default(),
     )
 }
@@ -94,4 +104,43 @@ fn black_pixels_do_not_make_the_level_zero() {
     let case = (color, filtered, variance);
     let i = 24 * SIDE + 30;
     assert_eq!(keep(&case, 0.5)[i], keep(&case, 0.0)[i]);
+}
+
+#[test]
+fn a_dark_dot_of_skewed_noise_keeps_its_surfaces_level() {
+    // A surface of level 0.5 whose noise σ is 0.1, a fifth of its brightness (a few samples in
+    // fog), and in it a dot where every sample missed (0). The filter put the dot at the
+    // surface's level: a rise of 5σ, which the leak test alone takes back to κ = 4 · 0.01 / 0.25.
+    // The surface-mates' median input (0.5) explains that rise where the level's σ is at least a
+    // tenth of it and the surface's albedo is mostly noise, and the filtered value stays.
+    const SKEWED: f32 = 0.1;
+    let noise = noisy_flat(SIDE, SIDE, 0.0, SKEWED, 11);
+    let dot = 24 * SIDE + 24;
+    let color = Image::from_fn(SIDE, SIDE, 3, |x, y, _| {
+        let i = y * SIDE + x;
+        if i == dot {
+            0.0
+        } else {
+            (FLAT + noise.pixel(i)[0]).max(0.0)
+        }
+    });
+    let filtered = Image::filled(SIDE, SIDE, 3, FLAT);
+    let variance = Image::filled(SIDE, SIDE, 3, SKEWED * SKEWED);
+    let case = (color, filtered, variance);
+    // The albedo's reliability around it: fog's (a quarter), or a clean albedo's (1).
+    let (fog, clean) = (vec![0.25f32; SIDE * SIDE], vec![1.0f32; SIDE * SIDE]);
+    let off = keep_with(&case, 0.0, Some(&fog));
+    let on = keep_with(&case, 0.5, Some(&fog));
+    assert!(off[dot] <= 0.17, "keep without the level {}", off[dot]);
+    assert!(on[dot] >= 0.9, "keep {}", on[dot]);
+    // The surface's own pixels: the same weights either way.
+    for i in [dot - 5, dot + 7 * SIDE] {
+        assert_eq!(on[i], off[i]);
+    }
+    // In a clean albedo the dark pixel may be a texel the reliability gate smoothed away (a lone
+    // texel reads as the albedo's noise at it, not around it), and without a reliability there is
+    // nothing to tell: the leak test stands.
+    for rho in [Some(clean.as_slice()), None] {
+        assert_eq!(keep_with(&case, 0.5, rho)[dot], off[dot]);
+    }
 }

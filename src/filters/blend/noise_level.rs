@@ -243,6 +243,51 @@ pub(super) fn leak_variance(level: &NoiseLevel, (c, f): (&[f32], &[f32]), var: f
     }
 }
 
+/// The leak test's variance `leak_var` for pixel `ci` of `color`, raised where its rise is the
+/// skew of a few samples: where the test would take the rise back (the mean over channels of its
+/// squared rise above `leak` · `leak_var`) and the image's level σ at the filtered value `fi` is
+/// at least a tenth of its surface-mates' median input (the noise is skewed there, most samples
+/// missing the light: fog's scattered paths at 1 spp), a rise up to that median, per channel, is
+/// explained. A dark dot among a surface's brighter pixels then keeps the filtered value instead
+/// of its speck; an emitter's rim, whose surface-mates are as dark as it, or any pixel where the
+/// noise is nearly symmetric (many samples), is tested as before.
+pub(super) fn skew_variance(
+    level: &NoiseLevel,
+    (color, ci, fi): (&[f32], &[f32], &[f32]),
+    mates: impl Iterator<Item = usize>,
+    leak_var: f64,
+    leak: f64,
+) -> f64 {
+    let gain = (0..3)
+        .map(|k| (fi[k] as f64 - ci[k] as f64).max(0.0).powi(2))
+        .sum::<f64>()
+        / 3.0;
+    // Not binding (or not finite): nothing to explain, the same weight.
+    if gain.partial_cmp(&(leak * leak_var)) != Some(std::cmp::Ordering::Greater) {
+        return leak_var;
+    }
+    let mut values: [Vec<f32>; 3] = Default::default();
+    for j in mates {
+        for (k, v) in values.iter_mut().enumerate() {
+            v.push(color[3 * j + k]);
+        }
+    }
+    if values[0].is_empty() {
+        return leak_var;
+    }
+    let mid = values[0].len() / 2;
+    let median = values.map(|mut v| *v.select_nth_unstable_by(mid, f32::total_cmp).1 as f64);
+    let bright = (median[0] + median[1] + median[2]) / 3.0;
+    if level.at(fi).sqrt() < SYMMETRIC * bright {
+        return leak_var;
+    }
+    let explained = (0..3)
+        .map(|k| (median[k] - ci[k] as f64).max(0.0).powi(2))
+        .sum::<f64>()
+        / 3.0;
+    leak_var.max(explained)
+}
+
 /// The mean over channels of the variance of `image`'s 3×3 window around (x, y), its edges
 /// clamped.
 fn window_variance(image: &[f32], (w, h): (usize, usize), (x, y): (usize, usize)) -> f64 {

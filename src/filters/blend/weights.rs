@@ -4,7 +4,7 @@
 use rayon::prelude::*;
 
 use super::error_estimate::{blend_error_row, trimmed_chi2, BLEND_RADIUS};
-use super::noise_level::{leak_variance, tested_variance, NoiseLevel};
+use super::noise_level::{leak_variance, skew_variance, tested_variance, NoiseLevel};
 use crate::filters::noise::from_image::MIN_MATES;
 use crate::filters::noise::measured::pixel_variance;
 use crate::filters::noise::surface::{Mates, Surface};
@@ -36,6 +36,7 @@ pub fn keep_weights(
         inputs,
         features,
         (tolerance, leak, 0.0, 0.0),
+        None,
         &Meter::default(),
     )
 }
@@ -51,6 +52,7 @@ pub fn keep_weights_metered(
     (color, filtered, variance): (&Image, &Image, &Image),
     features: &FeatureSet,
     (tolerance, leak, noise_level, leak_level): (f64, f64, f64, f64),
+    albedo_reliability: Option<&[f32]>,
     meter: &Meter,
 ) -> Vec<f32> {
     let (w, h) = color.dims();
@@ -97,14 +99,35 @@ pub fn keep_weights_metered(
                     _ => var,
                 };
                 let (ci, fi) = (&c[3 * i..3 * i + 3], &f[3 * i..3 * i + 3]);
+                // Held against the image's level where the estimate may read structure, and
+                // raised where the rise is the skew of a few samples (`skew_variance`).
                 let leak_var = match &leak_cap {
-                    Some(level) => leak_variance(level, (ci, fi), var),
+                    Some(level) => {
+                        let held = leak_variance(level, (ci, fi), var);
+                        match albedo_reliability {
+                            Some(rho) if unreliable_around(rho, mates.of(i)) => {
+                                skew_variance(level, (c, ci, fi), mates.of(i), held, leak)
+                            }
+                            _ => held,
+                        }
+                    }
                     None => var,
                 };
                 *keep = keep_weight(ci, fi, (var, tested, leak_var), (err, n), tolerance, leak);
             }
         });
     keep
+}
+
+/// Whether the albedo's mean reliability over a pixel's surface-mates is under a half: the
+/// features there are mostly noise (fog), not one clean surface with a lone texel in it.
+fn unreliable_around(rho: &[f32], mates: impl Iterator<Item = usize>) -> bool {
+    let (mut sum, mut n) = (0.0f64, 0usize);
+    for j in mates {
+        sum += rho[j] as f64;
+        n += 1;
+    }
+    n > 0 && sum < 0.5 * n as f64
 }
 
 /// One pixel's weight of [`keep_weights`]: its colour `c`, filtered value `f`, noise variance
