@@ -46,7 +46,7 @@ fn keep(case: &(Image, Image, Image), q: f64) -> Vec<f32> {
     keep_with(case, q, None)
 }
 
-/// [`keep`] with the albedo's reliability `rho` (one value a pixel) when one is given.
+/// [`keep`] with the normal's reliability `rho` (one value a pixel) when one is given.
 fn keep_with(
     (color, filtered, variance): &(Image, Image, Image),
     q: f64,
@@ -112,7 +112,7 @@ fn a_dark_dot_of_skewed_noise_keeps_its_surfaces_level() {
     // fog), and in it a dot where every sample missed (0). The filter put the dot at the
     // surface's level: a rise of 5σ, which the leak test alone takes back to κ = 4 · 0.01 / 0.25.
     // The surface-mates' median input (0.5) explains that rise where the level's σ is at least a
-    // tenth of it and the surface's albedo is mostly noise, and the filtered value stays.
+    // tenth of it and the surface's geometry is mostly noise, and the filtered value stays.
     const SKEWED: f32 = 0.1;
     let noise = noisy_flat(SIDE, SIDE, 0.0, SKEWED, 11);
     let dot = 24 * SIDE + 24;
@@ -127,7 +127,7 @@ fn a_dark_dot_of_skewed_noise_keeps_its_surfaces_level() {
     let filtered = Image::filled(SIDE, SIDE, 3, FLAT);
     let variance = Image::filled(SIDE, SIDE, 3, SKEWED * SKEWED);
     let case = (color, filtered, variance);
-    // The albedo's reliability around it: fog's (a quarter), or a clean albedo's (1).
+    // The normal's reliability around it: fog's (a quarter), or clean geometry's (1).
     let (fog, clean) = (vec![0.25f32; SIDE * SIDE], vec![1.0f32; SIDE * SIDE]);
     let off = keep_with(&case, 0.0, Some(&fog));
     let on = keep_with(&case, 0.5, Some(&fog));
@@ -137,9 +137,8 @@ fn a_dark_dot_of_skewed_noise_keeps_its_surfaces_level() {
     for i in [dot - 5, dot + 7 * SIDE] {
         assert_eq!(on[i], off[i]);
     }
-    // In a clean albedo the dark pixel may be a texel the reliability gate smoothed away (a lone
-    // texel reads as the albedo's noise at it, not around it), and without a reliability there is
-    // nothing to tell: the leak test stands.
+    // On clean geometry the dark pixel may be a texel the albedo's reliability gate smoothed away,
+    // and without a reliability there is nothing to tell: the leak test stands.
     for rho in [Some(clean.as_slice()), None] {
         assert_eq!(keep_with(&case, 0.5, rho)[dot], off[dot]);
     }

@@ -174,7 +174,7 @@ impl Stage for BlendStage {
             (original, filtered, variance),
             buffers.features(),
             (tolerance, self.params.leak, noise_level, leak_level),
-            buffers.get("albedo_reliability").map(|r| r.data()),
+            buffers.get("normal_reliability").map(|r| r.data()),
             &ctx.meter,
         );
         ctx.meter.check()?;

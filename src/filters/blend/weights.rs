@@ -52,7 +52,7 @@ pub fn keep_weights_metered(
     (color, filtered, variance): (&Image, &Image, &Image),
     features: &FeatureSet,
     (tolerance, leak, noise_level, leak_level): (f64, f64, f64, f64),
-    albedo_reliability: Option<&[f32]>,
+    normal_reliability: Option<&[f32]>,
     meter: &Meter,
 ) -> Vec<f32> {
     let (w, h) = color.dims();
@@ -104,7 +104,7 @@ pub fn keep_weights_metered(
                 let leak_var = match &leak_cap {
                     Some(level) => {
                         let held = leak_variance(level, (ci, fi), var);
-                        match albedo_reliability {
+                        match normal_reliability {
                             Some(rho) if unreliable_around(rho, mates.of(i)) => {
                                 skew_variance(level, (c, ci, fi), mates.of(i), held, leak)
                             }
@@ -119,8 +119,10 @@ pub fn keep_weights_metered(
     keep
 }
 
-/// Whether the albedo's mean reliability over a pixel's surface-mates is under a half: the
-/// features there are mostly noise (fog), not one clean surface with a lone texel in it.
+/// Whether the normal's mean reliability over a pixel's surface-mates is under a half: the
+/// geometry there is mostly noise (fog, where Blender writes a camera-facing normal for a sample
+/// that scattered), not one clean surface. The albedo's would not do: a lone dark texel reads as
+/// its noise over the whole gate window around it.
 fn unreliable_around(rho: &[f32], mates: impl Iterator<Item = usize>) -> bool {
     let (mut sum, mut n) = (0.0f64, 0usize);
     for j in mates {
