@@ -9,7 +9,7 @@ use crate::kernels::trim::{self, LANES};
 /// Radius of the window the blend's error estimate averages over (5×5).
 pub(super) const BLEND_RADIUS: isize = trim::RADIUS;
 const BLEND_SIDE: usize = 2 * BLEND_RADIUS as usize + 1;
-const BLEND_TAPS: usize = BLEND_SIDE * BLEND_SIDE;
+pub(super) const BLEND_TAPS: usize = BLEND_SIDE * BLEND_SIDE;
 /// Most values the blend's trimmed mean takes (its 5×5 window).
 const MAX_TRIMMED: usize = BLEND_TAPS;
 

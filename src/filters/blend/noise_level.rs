@@ -13,6 +13,7 @@
 
 use rayon::prelude::*;
 
+use super::error_estimate::BLEND_TAPS;
 use crate::filters::noise::measured::pixel_variance;
 use crate::image::Image;
 
@@ -243,40 +244,32 @@ pub(super) fn leak_variance(level: &NoiseLevel, (c, f): (&[f32], &[f32]), var: f
     }
 }
 
-/// The leak test's variance `leak_var` for pixel `ci` of `color`, raised where its rise is the
-/// skew of a few samples: where the test would take the rise back (the mean over channels of its
-/// squared rise above `leak` · `leak_var`) and the image's level σ at the filtered value `fi` is
-/// at least a tenth of its surface-mates' median input (the noise is skewed there, most samples
-/// missing the light: fog's scattered paths at 1 spp), a rise up to that median, per channel, is
-/// explained. A dark dot among a surface's brighter pixels then keeps the filtered value instead
-/// of its speck; an emitter's rim, whose surface-mates are as dark as it, or any pixel where the
-/// noise is nearly symmetric (many samples), is tested as before.
+/// The leak test's variance `leak_var` for pixel `ci` of `color`, whose rise to the filtered `fi`
+/// the test would take back, raised where that rise is the skew of a few samples: where the image's
+/// level σ at `fi` is at least a tenth of its surface-mates' median input (most samples missing the
+/// light: fog's scattered paths at 1 spp), a rise up to that median, per channel, is explained. A
+/// dark dot among a surface's brighter pixels then keeps the filtered value instead of its speck;
+/// an emitter's rim, whose surface-mates are as dark as it, or any pixel where the noise is nearly
+/// symmetric (many samples), is tested as before.
 pub(super) fn skew_variance(
     level: &NoiseLevel,
     (color, ci, fi): (&[f32], &[f32], &[f32]),
     mates: impl Iterator<Item = usize>,
     leak_var: f64,
-    leak: f64,
 ) -> f64 {
-    let gain = (0..3)
-        .map(|k| (fi[k] as f64 - ci[k] as f64).max(0.0).powi(2))
-        .sum::<f64>()
-        / 3.0;
-    // Not binding (or not finite): nothing to explain, the same weight.
-    if gain.partial_cmp(&(leak * leak_var)) != Some(std::cmp::Ordering::Greater) {
-        return leak_var;
-    }
-    let mut values: [Vec<f32>; 3] = Default::default();
+    // The mates' inputs per channel, on the stack: at most the blend window's cells.
+    let mut values = [[0.0f32; BLEND_TAPS]; 3];
+    let mut n = 0;
     for j in mates {
         for (k, v) in values.iter_mut().enumerate() {
-            v.push(color[3 * j + k]);
+            v[n] = color[3 * j + k];
         }
+        n += 1;
     }
-    if values[0].is_empty() {
+    if n == 0 {
         return leak_var;
     }
-    let mid = values[0].len() / 2;
-    let median = values.map(|mut v| *v.select_nth_unstable_by(mid, f32::total_cmp).1 as f64);
+    let median = values.map(|mut v| *v[..n].select_nth_unstable_by(n / 2, f32::total_cmp).1 as f64);
     let bright = (median[0] + median[1] + median[2]) / 3.0;
     if level.at(fi).sqrt() < SYMMETRIC * bright {
         return leak_var;

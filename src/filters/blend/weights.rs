@@ -104,9 +104,13 @@ pub fn keep_weights_metered(
                 let leak_var = match &leak_cap {
                     Some(level) => {
                         let held = leak_variance(level, (ci, fi), var);
+                        // Cheapest first: most pixels' rise passes the leak test as it is.
                         match normal_reliability {
-                            Some(rho) if unreliable_around(rho, mates.of(i)) => {
-                                skew_variance(level, (c, ci, fi), mates.of(i), held, leak)
+                            Some(rho)
+                                if rise2(ci, fi) > leak * held
+                                    && unreliable_around(rho, mates.of(i)) =>
+                            {
+                                skew_variance(level, (c, ci, fi), mates.of(i), held)
                             }
                             _ => held,
                         }
@@ -117,6 +121,15 @@ pub fn keep_weights_metered(
             }
         });
     keep
+}
+
+/// The mean over channels of the squared rise from colour `c` to filtered `f` (falls count 0):
+/// what the leak test holds against its variance.
+fn rise2(c: &[f32], f: &[f32]) -> f64 {
+    (0..3)
+        .map(|k| (f[k] as f64 - c[k] as f64).max(0.0).powi(2))
+        .sum::<f64>()
+        / 3.0
 }
 
 /// Whether the normal's mean reliability over a pixel's surface-mates is under a half: the
@@ -153,11 +166,7 @@ fn keep_weight(
     // A pixel the filter made far brighter than its own noise allows took light from a neighbour
     // the features could not tell apart (an emitter beside the ceiling it lies in): trimmed away
     // above, so checked alone. Darker is left alone: that is a firefly removed.
-    let gain = (0..3)
-        .map(|k| (f[k] as f64 - c[k] as f64).max(0.0).powi(2))
-        .sum::<f64>()
-        / 3.0;
-    let leak = leak * leak_var / gain.max(f64::MIN_POSITIVE);
+    let leak = leak * leak_var / rise2(c, f).max(f64::MIN_POSITIVE);
     keep.min(leak).min(1.0) as f32
 }
 
