@@ -31,7 +31,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::buffers::{Buffers, COLOR};
 use crate::error::{Error, Result};
+use crate::filters::reliability::reliability_name;
 use crate::filters::stage::{parse_params, Context, Stage, StageIo};
+use crate::render_set::Feature;
 
 pub use weights::{keep_weights, keep_weights_metered};
 
@@ -174,7 +176,9 @@ impl Stage for BlendStage {
             (original, filtered, variance),
             buffers.features(),
             (tolerance, self.params.leak, noise_level, leak_level),
-            buffers.get("normal_reliability").map(|r| r.data()),
+            buffers
+                .get_sized(&reliability_name(Feature::Normal), 1, original.dims())?
+                .map(|r| r.data()),
             &ctx.meter,
         );
         ctx.meter.check()?;
