@@ -1,5 +1,5 @@
 //! The integration tests, one binary: each file beside this one is a topic (`cargo test --test it
-//! cli::` runs one). One binary links gsid once instead of once per file. Binaries of their own: `layout` (the house rules of `src/`),
+//! cli::` runs one). One binary links gsid once instead of once per file. Binaries of their own: `layout` (the house rules), `docs` (the docs hold together),
 //! `walk_miri` (run by name under Miri, `scripts/miri.sh`) and `resources` (children's peak memory,
 //! which a large parent process would inflate). proptest keeps the failing cases it saved for a
 //! file here in `tests/proptest-regressions/FILE.txt` (its place for a crate rooted in `main.rs`).

@@ -129,7 +129,7 @@ fn rgb(p: &Plane, i: usize) -> [f64; 3] {
 }
 
 /// The factor that brings the colour's robust brightness (mean luminance of the pixels at or below
-/// the 99th percentile) to 0.072, as gsid does before filtering (README, "Brightness").
+/// the 99th percentile) to 0.072, as gsid does before filtering (docs/HOW_IT_WORKS.md, "Brightness").
 /// It only moves the tone curve: averaging is linear and the result is scaled back.
 fn exposure(color: &[[f64; 3]]) -> f64 {
     let mut lum: Vec<f64> = color
