@@ -262,7 +262,7 @@ def cpu_model():
 
 def parse_args(argv):
     p = argparse.ArgumentParser(description="Compare gsid with Open Image Denoise and BM3D (see the file's docstring).")
-    p.add_argument("--fixtures", default=",".join(DEFAULT_FIXTURES), help="comma-separated fixture names")
+    p.add_argument("--fixtures", default=",".join(DEFAULT_FIXTURES), help="comma-separated fixture names, or folders as gsid render writes them (a name with a slash)")
     p.add_argument("--spp", default="1,4,16,64", help="comma-separated sample counts (folders spp<N>)")
     p.add_argument("--pipelines", nargs="+", default=DEFAULT_PIPELINES, help="gsid pipeline names")
     p.add_argument("--runs", type=int, default=5, help="timed runs of OIDN and gsid (median)")

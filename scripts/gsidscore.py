@@ -113,7 +113,9 @@ def cases(fixtures, spps):
                 path, ref = multilayer_case(fx, spp)
                 found.append((fx, spp, path, ref))
             continue
-        fdir = ROOT / "fixtures" / fx
+        # A name with a slash is a folder as `gsid render` writes it (reference.exr, spp<N>/),
+        # named in the tables by its last part.
+        fdir = Path(fx) if "/" in fx else ROOT / "fixtures" / fx
         if not fdir.is_dir():
             fail(f"fixture {fx!r}: no folder {fdir} (known: {', '.join(ALL_FIXTURES + MULTILAYER_FIXTURES)})")
         ref = fdir / "reference.exr"
@@ -124,7 +126,7 @@ def cases(fixtures, spps):
             for buf in ("color", "albedo", "normal"):
                 if not (setdir / f"{buf}.exr").is_file():
                     fail(f"fixture {fx!r} at {spp} spp: no {setdir / (buf + '.exr')}")
-            found.append((fx, spp, setdir, ref))
+            found.append((fdir.name, spp, setdir, ref))
     return found
 
 
