@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """gsid against Open Image Denoise on scene kinds no comparison fixture has, held out from tuning.
 
-The scenes are `fixtures/scenes/unseen/*.toml` (depth of field, an outdoor sky and sun, a glossy room).
+The scenes are `fixtures/scenes/unseen/*.toml` (depth of field, a glossy room, a room lit only by
+bounced light, an outdoor sky and sun).
 Each is rendered once by `gsid render` at 1 / 4 / 16 / 64 spp with a 4096-spp reference into
 `target/unseen/NAME/` (again only when its scene file changed), then scored by
 `scripts/compare_denoisers.py` with every other argument passed on:
