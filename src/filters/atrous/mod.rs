@@ -2,6 +2,7 @@
 //! to take the residual speckle out of a GSID result.
 
 pub mod pass;
+mod range;
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -63,6 +64,8 @@ impl Default for AtrousParams {
 
 /// Added to the albedo before dividing by it: black surfaces keep their (small) colour.
 const DEMODULATION_EPS: f32 = 0.01;
+/// The window whose brightest pixel a demodulated pass's output is held below: the first pass's 5×5 taps.
+const HELD_RADIUS: usize = 2;
 
 /// Most passes accepted. Pass k spaces its taps 2^(k−1) pixels apart and each band's feature planes
 /// hold the rows within reach, so a cap on passes bounds a band's memory (5: 32 rows either side);
@@ -170,6 +173,8 @@ impl Stage for AtrousStage {
         } else {
             None
         };
+        // What the pass's output is held below when it demodulates (`range`).
+        let peak = albedo.map(|_| range::peaks(&color, HELD_RADIUS));
         if let Some(a) = albedo {
             color
                 .data_mut()
@@ -201,6 +206,9 @@ impl Stage for AtrousStage {
                 .par_iter_mut()
                 .zip(a.data())
                 .for_each(|(c, &a)| *c *= a.max(0.0) + DEMODULATION_EPS);
+        }
+        if let Some(peak) = peak {
+            range::hold_below(&mut color, &peak);
         }
         buffers.insert(self.io.output.clone(), color)?;
         Ok(0)
