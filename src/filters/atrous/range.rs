@@ -9,26 +9,20 @@
 
 use rayon::prelude::*;
 
+use crate::filters::outlier::luminance_image;
 use crate::image::Image;
-
-/// Rec. 709 luminance of an RGB sample, in f64.
-fn luminance(p: &[f32]) -> f64 {
-    0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64
-}
 
 /// The largest luminance of the RGB `input` over the (2r + 1)² window around each pixel (clipped
 /// at the image's border): along each row first, then down the columns of those.
 pub fn peaks(input: &Image, r: usize) -> Vec<f32> {
     let (w, h) = input.dims();
     assert_eq!(input.channels(), 3, "an RGB image");
-    let data = input.data();
+    let lum = luminance_image(input);
     let mut rows = vec![0.0f32; w * h];
     rows.par_chunks_mut(w.max(1))
         .enumerate()
         .for_each(|(y, row)| {
-            let lum: Vec<f32> = (0..w)
-                .map(|x| luminance(&data[3 * (y * w + x)..]) as f32)
-                .collect();
+            let lum = &lum[y * w..(y + 1) * w];
             for (x, p) in row.iter_mut().enumerate() {
                 let (x0, x1) = (x.saturating_sub(r), (x + r).min(w - 1));
                 *p = lum[x0..=x1]
@@ -59,7 +53,8 @@ pub fn hold_below(out: &mut Image, peak: &[f32]) {
         .zip(peak.par_chunks(w))
         .for_each(|(row, peak)| {
             for (px, &top) in row.chunks_exact_mut(3).zip(peak) {
-                let l = luminance(px);
+                // In f64, unrounded: the scale is a ratio of two luminances near each other.
+                let l = 0.2126 * px[0] as f64 + 0.7152 * px[1] as f64 + 0.0722 * px[2] as f64;
                 let top = top as f64;
                 // Only a finite excess over a non-negative peak is scaled: nothing else divides.
                 if l > top && top >= 0.0 && l.is_finite() {
@@ -80,6 +75,7 @@ fn hold_below_peak(out: &mut Image, input: &Image, r: usize) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::filters::outlier::luminance;
 
     #[test]
     fn a_pixel_above_its_windows_peak_is_scaled_to_it_and_the_rest_passes() {
