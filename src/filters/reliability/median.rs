@@ -6,6 +6,7 @@ use rayon::prelude::*;
 use super::variance::{DIRECTIONS, NO_DIRECTION};
 use crate::image::{par_vec, Image};
 use crate::kernels::padded::Padded;
+use crate::kernels::simd::{row_kernel, Kernel};
 
 /// Radius of the medians: 5 pixels along a direction, or a 5×5 square (the five-value network
 /// below is written for it).
@@ -46,31 +47,41 @@ pub(super) fn median_along(
 /// window. Not the exact median of 25, but as sure to drop a scatter of outliers (a row median
 /// drops up to two in its row, the column median up to two bad rows) at a fifth of the cost.
 pub(super) fn square_median(src: &Padded, plane: &[f64], (w, h): (usize, usize)) -> Vec<f64> {
-    let r = MEDIAN_RADIUS as isize;
-    let rows = h + 2 * MEDIAN_RADIUS;
-    // Row medians of every padded row (the column pass reads MEDIAN_RADIUS rows beyond the image).
-    let mut row_med = par_vec(0.0, w * rows);
-    row_med.par_chunks_mut(w).enumerate().for_each(|(py, out)| {
-        let at = src.index(0, py as isize - r);
-        for (x, o) in out.iter_mut().enumerate() {
-            let c = at + x;
-            *o = median5([
-                plane[c - 2],
-                plane[c - 1],
-                plane[c],
-                plane[c + 1],
-                plane[c + 2],
-            ]);
-        }
-    });
     let mut out = par_vec(0.0, w * h);
-    out.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
-        for (x, o) in out.iter_mut().enumerate() {
-            let m = |k: usize| row_med[(y + k) * w + x];
-            *o = median5([m(0), m(1), m(2), m(3), m(4)]);
-        }
-    });
+    out.par_chunks_mut(BAND * w.max(1))
+        .enumerate()
+        .for_each(|(band, out)| {
+            let (kernel, y0) = (Kernel::detect(), band * BAND);
+            row_kernel!(kernel, square_band(src: &Padded, plane: &[f64], w: usize, y0: usize, out: &mut [f64]));
+        });
     out
+}
+
+/// Rows a task of [`square_median`] takes: its row medians stay in cache for the column pass.
+const BAND: usize = 32;
+
+/// [`square_median`] of the rows from `y0` on that `out` holds: the row medians of its rows and
+/// MEDIAN_RADIUS either side (the padded plane's margin), then the column medians.
+#[inline(always)]
+fn square_band(src: &Padded, plane: &[f64], w: usize, y0: usize, out: &mut [f64]) {
+    let r = MEDIAN_RADIUS as isize;
+    let rows = out.len() / w;
+    let span = rows + 2 * MEDIAN_RADIUS;
+    let mut row_med = vec![0.0f64; span * w];
+    for (j, med) in row_med.chunks_exact_mut(w).enumerate() {
+        let at = src.index(0, y0 as isize + j as isize - r);
+        let p = &plane[at - 2..at + w + 2];
+        for (x, o) in med.iter_mut().enumerate() {
+            *o = median5([p[x], p[x + 1], p[x + 2], p[x + 3], p[x + 4]]);
+        }
+    }
+    for (t, out) in out.chunks_exact_mut(w).enumerate() {
+        let m = |k: usize| &row_med[(t + k) * w..(t + k + 1) * w];
+        let (m0, m1, m2, m3, m4) = (m(0), m(1), m(2), m(3), m(4));
+        for (x, o) in out.iter_mut().enumerate() {
+            *o = median5([m0[x], m1[x], m2[x], m3[x], m4[x]]);
+        }
+    }
 }
 
 /// The median of five values: a sorting network, no branches.
@@ -142,7 +153,31 @@ fn fill_pass(img: &Image) -> Image {
 
 #[cfg(test)]
 mod tests {
-    use super::median5;
+    use super::*;
+    use crate::kernels::padded::Margin;
+
+    #[test]
+    fn the_banded_square_median_is_the_median_of_the_row_medians_of_every_window() {
+        // Heights across several bands, widths down to one pixel; edges replicated.
+        for (w, h) in [(1, 1), (3, 2), (7, 70), (1, 33), (12, 65)] {
+            let value = |i: usize, _k: usize| ((i * 7919 + 13) % 101) as f64 / 10.0 - 3.0;
+            let src = Padded::new((w, h), 1, MEDIAN_RADIUS, Margin::Edge, value);
+            let got = square_median(&src, &src.planes[0], (w, h));
+            let at = |x: isize, y: isize| {
+                let (x, y) = (x.clamp(0, w as isize - 1), y.clamp(0, h as isize - 1));
+                value(y as usize * w + x as usize, 0)
+            };
+            for y in 0..h as isize {
+                for x in 0..w as isize {
+                    let row = |dy: isize| {
+                        median5(std::array::from_fn(|k| at(x + k as isize - 2, y + dy)))
+                    };
+                    let want = median5(std::array::from_fn(|k| row(k as isize - 2)));
+                    assert_eq!(got[y as usize * w + x as usize], want, "{w}x{h} ({x}, {y})");
+                }
+            }
+        }
+    }
 
     #[test]
     fn median5_is_the_middle_of_every_order() {
