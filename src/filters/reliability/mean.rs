@@ -22,6 +22,7 @@ use super::variance::{box_mean, DIRECTIONS, NO_DIRECTION};
 use crate::error::Result;
 use crate::image::par_vec;
 use crate::kernels::padded::{Margin, Padded};
+use crate::kernels::simd::{row_kernel, Kernel};
 use crate::meter::Meter;
 
 /// Squared distances over this many times a pixel's scale weigh nothing (e^−40).
@@ -66,77 +67,185 @@ pub(super) fn pull_to_surface_mean(
     let sample = Padded::new((w, h), 1, radius, Margin::Edge, |i, _| {
         f64::from(u8::from((0..c).all(|k| raw[k][i].is_finite())))
     });
-    let r = radius as isize;
     let mut flat = par_vec(0.0f64, w * h * c);
     meter.step()?;
-    flat.par_chunks_mut(w * c).enumerate().for_each(|(y, row)| {
-        let mut sums = vec![0.0f64; c];
-        for x in 0..w {
-            let i = y * w + x;
-            let px = &mut row[x * c..(x + 1) * c];
-            for (k, v) in px.iter_mut().enumerate() {
-                *v = gated[k][i];
-            }
-            let scale = 2.0 * pair_noise * taken[i];
-            let pull = 1.0 - reading.rho[i];
-            let finite = px.iter().all(|v| v.is_finite());
-            if !(scale > 0.0 && scale.is_finite() && pull > 0.0 && finite) {
-                continue;
-            }
-            sums.fill(0.0);
-            let mut total = 0.0;
-            // Beyond this squared distance a weight is below e^−40 (under 1e-17 of the pixel's
-            // own, 1): skipped without its exponential.
-            let far = FAR * scale;
-            let mut tap = |at: usize| {
-                // A distance of infinity (nothing hit) is no sample of a surface.
-                if sample.planes[0][at] == 0.0 {
-                    return;
-                }
-                let mut d2 = 0.0;
-                for (plane, own) in gated_p.planes.iter().zip(gated) {
-                    let d = plane[at] - own[i];
-                    d2 += d * d;
-                }
-                // NaN included: a distance not below `far` weighs nothing.
-                if d2.partial_cmp(&far) != Some(std::cmp::Ordering::Less) {
-                    return;
-                }
-                let weight = (-d2 / scale).exp();
-                if weight.is_nan() || weight <= 0.0 {
-                    return;
-                }
-                total += weight;
-                for (k, s) in sums.iter_mut().enumerate() {
-                    *s += weight * raw_p.planes[k][at];
-                }
-            };
-            match reading.along[i] {
-                NO_DIRECTION => {
-                    for dy in -r..=r {
-                        for dx in -r..=r {
-                            tap(gated_p.at(x, y, (dx, dy)));
-                        }
-                    }
-                }
-                d => {
-                    let (dx, dy) = DIRECTIONS[d as usize];
-                    for t in -r..=r {
-                        tap(gated_p.at(x, y, (t * dx, t * dy)));
-                    }
-                }
-            }
-            if total > 0.0 {
-                for (v, s) in px.iter_mut().zip(&sums) {
-                    *v += pull * (s / total - *v);
-                }
-            }
-        }
-    });
+    let planes = Planes {
+        raw,
+        gated,
+        raw_p: &raw_p,
+        gated_p: &gated_p,
+        sample: &sample,
+    };
+    let kernel = Kernel::detect();
+    flat.par_chunks_mut(w * c)
+        .enumerate()
+        .for_each_init(Row::default, |scratch, (y, row)| {
+            let (r, reading, planes) = (radius, &reading, &planes);
+            let taken = &taken[..];
+            row_kernel!(kernel, mean_row(planes: &Planes, reading: &Reading, taken: &[f64], w: usize, y: usize, r: usize, pair_noise: f64, scratch: &mut Row, row: &mut [f64]));
+        });
     // Back to one plane a channel, in parallel.
     Ok((0..c)
         .map(|k| flat.par_chunks(c).map(|px| px[k]).collect())
         .collect())
+}
+
+/// The planes [`mean_row`] reads: unpadded raw and gated values, their padded copies, and the
+/// padded mask of finite raw samples.
+struct Planes<'a> {
+    raw: &'a [Vec<f64>],
+    gated: &'a [Vec<f64>],
+    raw_p: &'a Padded,
+    gated_p: &'a Padded,
+    sample: &'a Padded,
+}
+
+/// A worker's row buffers: per pixel of the row, its own gated value per channel, its weights'
+/// scale and cut-off, the pixels that average their whole window, and its running sums (`line`: one
+/// pixel's, along its direction).
+#[derive(Default)]
+struct Row {
+    own: Vec<Vec<f64>>,
+    scale: Vec<f64>,
+    far: Vec<f64>,
+    square: Vec<usize>,
+    total: Vec<f64>,
+    sums: Vec<Vec<f64>>,
+    d2: Vec<f64>,
+    line: Vec<f64>,
+}
+
+/// Row y of the pulled values (`row`: w pixels of c channels). A pixel whose window has a direction
+/// averages its line, one pixel at a time; the others their whole window, one tap at a time across
+/// the row, so each tap's distances are one vectorised pass while every pixel still adds its taps in
+/// the window's order (dy, then dx): the same bits as a pixel at a time.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn mean_row(
+    planes: &Planes,
+    reading: &Reading,
+    taken: &[f64],
+    w: usize,
+    y: usize,
+    r: usize,
+    pair_noise: f64,
+    s: &mut Row,
+    row: &mut [f64],
+) {
+    let c = planes.raw.len();
+    let ri = r as isize;
+    s.own.resize_with(c, Vec::new);
+    s.sums.resize_with(c, Vec::new);
+    for v in s.own.iter_mut().chain(s.sums.iter_mut()) {
+        v.clear();
+        v.resize(w, 0.0);
+    }
+    for v in [&mut s.scale, &mut s.far, &mut s.total, &mut s.d2] {
+        v.clear();
+        v.resize(w, 0.0);
+    }
+    s.square.clear();
+    for x in 0..w {
+        let i = y * w + x;
+        let px = &mut row[x * c..(x + 1) * c];
+        for (k, v) in px.iter_mut().enumerate() {
+            *v = planes.gated[k][i];
+            s.own[k][x] = *v;
+        }
+        let scale = 2.0 * pair_noise * taken[i];
+        let pull = 1.0 - reading.rho[i];
+        let finite = px.iter().all(|v| v.is_finite());
+        if !(scale > 0.0 && scale.is_finite() && pull > 0.0 && finite) {
+            continue;
+        }
+        // Beyond this squared distance a weight is below e^−40 (under 1e-17 of the pixel's
+        // own, 1): skipped without its exponential.
+        s.scale[x] = scale;
+        s.far[x] = FAR * scale;
+        match reading.along[i] {
+            NO_DIRECTION => s.square.push(x),
+            d => {
+                let (dx, dy) = DIRECTIONS[d as usize];
+                let mut total = 0.0;
+                s.line.clear();
+                s.line.resize(c, 0.0);
+                for t in -ri..=ri {
+                    let at = planes.gated_p.at(x, y, (t * dx, t * dy));
+                    let d2 = distance(planes, at, |k| s.own[k][x]);
+                    if let Some(weight) = weigh(planes, at, d2, s.far[x], scale) {
+                        total += weight;
+                        for (sum, raw) in s.line.iter_mut().zip(&planes.raw_p.planes) {
+                            *sum += weight * raw[at];
+                        }
+                    }
+                }
+                if total > 0.0 {
+                    for (k, v) in px.iter_mut().enumerate() {
+                        *v += pull * (s.line[k] / total - *v);
+                    }
+                }
+            }
+        }
+    }
+    if s.square.is_empty() {
+        return;
+    }
+    for dy in -ri..=ri {
+        for dx in -ri..=ri {
+            let at0 = planes.gated_p.at(0, y, (dx, dy));
+            // Every pixel's distance at this tap, a contiguous run of each padded plane.
+            s.d2.fill(0.0);
+            for (plane, own) in planes.gated_p.planes.iter().zip(&s.own) {
+                for ((d2, &p), &o) in s.d2.iter_mut().zip(&plane[at0..at0 + w]).zip(own) {
+                    let d = p - o;
+                    *d2 += d * d;
+                }
+            }
+            for &x in &s.square {
+                let at = at0 + x;
+                if let Some(weight) = weigh(planes, at, s.d2[x], s.far[x], s.scale[x]) {
+                    s.total[x] += weight;
+                    for (sum, raw) in s.sums.iter_mut().zip(&planes.raw_p.planes) {
+                        sum[x] += weight * raw[at];
+                    }
+                }
+            }
+        }
+    }
+    for &x in &s.square {
+        if s.total[x] <= 0.0 {
+            continue;
+        }
+        let pull = 1.0 - reading.rho[y * w + x];
+        for (k, v) in row[x * c..(x + 1) * c].iter_mut().enumerate() {
+            *v += pull * (s.sums[k][x] / s.total[x] - *v);
+        }
+    }
+}
+
+/// The squared distance of the gated planes at padded index `at` from a pixel's own values.
+#[inline(always)]
+fn distance(planes: &Planes, at: usize, own: impl Fn(usize) -> f64) -> f64 {
+    let mut d2 = 0.0;
+    for (k, plane) in planes.gated_p.planes.iter().enumerate() {
+        let d = plane[at] - own(k);
+        d2 += d * d;
+    }
+    d2
+}
+
+/// A tap's weight `exp(−d2 / scale)`, or none: a distance of infinity (nothing hit) is no sample
+/// of a surface, and a distance not below `far` (NaN included) weighs nothing.
+#[inline(always)]
+fn weigh(planes: &Planes, at: usize, d2: f64, far: f64, scale: f64) -> Option<f64> {
+    if planes.sample.planes[0][at] == 0.0 {
+        return None;
+    }
+    if d2.partial_cmp(&far) != Some(std::cmp::Ordering::Less) {
+        return None;
+    }
+    let weight = (-d2 / scale).exp();
+    (!weight.is_nan() && weight > 0.0).then_some(weight)
 }
 
 #[cfg(test)]
@@ -159,6 +268,136 @@ mod tests {
         )
         .unwrap();
         out.into_iter().next().unwrap()
+    }
+
+    /// The surface mean a pixel at a time, as the definition reads: every pixel's taps in its
+    /// window's order (dy, then dx) or along its line, each weighed as [`weigh`] does.
+    fn per_pixel(
+        raw: &[Vec<f64>],
+        gated: &[Vec<f64>],
+        reading: &Reading,
+        (w, h): (usize, usize),
+        r: usize,
+    ) -> Vec<Vec<f64>> {
+        let c = raw.len();
+        let residual: Vec<f64> = (0..w * h)
+            .map(|i| {
+                (0..c)
+                    .map(|k| (raw[k][i] - gated[k][i]).powi(2))
+                    .filter(|d| d.is_finite())
+                    .sum()
+            })
+            .collect();
+        let taken = box_mean(&residual, (w, h), r);
+        let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
+        let mut out = gated.to_vec();
+        for y in 0..h {
+            for x in 0..w {
+                let i = y * w + x;
+                let scale = 2.0 * 2.0 * taken[i];
+                let pull = 1.0 - reading.rho[i];
+                let finite = (0..c).all(|k| gated[k][i].is_finite());
+                if !(scale > 0.0 && scale.is_finite() && pull > 0.0 && finite) {
+                    continue;
+                }
+                let taps: Vec<(isize, isize)> = match reading.along[i] {
+                    NO_DIRECTION => (-(r as isize)..=r as isize)
+                        .flat_map(|dy| (-(r as isize)..=r as isize).map(move |dx| (dx, dy)))
+                        .collect(),
+                    d => {
+                        let (dx, dy) = DIRECTIONS[d as usize];
+                        (-(r as isize)..=r as isize)
+                            .map(|t| (t * dx, t * dy))
+                            .collect()
+                    }
+                };
+                let (mut total, mut sums) = (0.0, vec![0.0; c]);
+                for (dx, dy) in taps {
+                    let j = clamp(y as isize + dy, h) * w + clamp(x as isize + dx, w);
+                    if !(0..c).all(|k| raw[k][j].is_finite()) {
+                        continue;
+                    }
+                    let mut d2 = 0.0;
+                    for k in 0..c {
+                        let d = gated[k][j] - gated[k][i];
+                        d2 += d * d;
+                    }
+                    if d2.partial_cmp(&(FAR * scale)) != Some(std::cmp::Ordering::Less) {
+                        continue;
+                    }
+                    let weight = (-d2 / scale).exp();
+                    if weight.is_nan() || weight <= 0.0 {
+                        continue;
+                    }
+                    total += weight;
+                    for k in 0..c {
+                        sums[k] += weight * raw[k][j];
+                    }
+                }
+                if total > 0.0 {
+                    for k in 0..c {
+                        out[k][i] += pull * (sums[k] / total - out[k][i]);
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn the_row_at_a_time_sums_give_the_per_pixel_definitions_bits() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand::rngs::Xoshiro256PlusPlus::seed_from_u64(7);
+        for (w, h, c) in [(1, 1, 1), (9, 5, 3), (17, 12, 3), (6, 9, 1)] {
+            let n = w * h;
+            let gated: Vec<Vec<f64>> = (0..c)
+                .map(|_| {
+                    (0..n)
+                        .map(|_| (rng.random_range(0..4) as f64) * 0.1)
+                        .collect()
+                })
+                .collect();
+            let mut raw: Vec<Vec<f64>> = gated
+                .iter()
+                .map(|g| {
+                    g.iter()
+                        .map(|&v| v + rng.random_range(-0.05..0.05))
+                        .collect()
+                })
+                .collect();
+            // A sample that hit nothing.
+            raw[0][n / 2] = f64::INFINITY;
+            let rho: Vec<f64> = (0..n)
+                .map(|_| rng.random_range(0.0..1.2f64).min(1.0))
+                .collect();
+            let along: Vec<u8> = (0..n).map(|_| rng.random_range(0..=NO_DIRECTION)).collect();
+            let reading = Reading {
+                rho: &rho,
+                along: &along,
+            };
+            let got = pull_to_surface_mean(
+                &raw,
+                &gated,
+                Reading {
+                    rho: &rho,
+                    along: &along,
+                },
+                (w, h),
+                (2, 2.0),
+                &Meter::default(),
+            )
+            .unwrap();
+            let want = per_pixel(&raw, &gated, &reading, (w, h), 2);
+            for k in 0..c {
+                for i in 0..n {
+                    assert_eq!(
+                        got[k][i].to_bits(),
+                        want[k][i].to_bits(),
+                        "{w}x{h} channel {k} pixel {i}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]
