@@ -75,14 +75,18 @@ pub(super) fn pull_to_surface_mean(
         raw_p: &raw_p,
         gated_p: &gated_p,
         sample: &sample,
+        reading: &reading,
+        taken: &taken,
+        w,
+        radius,
+        pair_noise,
     };
     let kernel = Kernel::detect();
     flat.par_chunks_mut(w * c)
         .enumerate()
         .for_each_init(Row::default, |scratch, (y, row)| {
-            let (r, reading, planes) = (radius, &reading, &planes);
-            let taken = &taken[..];
-            row_kernel!(kernel, mean_row(planes: &Planes, reading: &Reading, taken: &[f64], w: usize, y: usize, r: usize, pair_noise: f64, scratch: &mut Row, row: &mut [f64]));
+            let planes = &planes;
+            row_kernel!(kernel, mean_row(planes: &Planes, y: usize, scratch: &mut Row, row: &mut [f64]));
         });
     // Back to one plane a channel, in parallel.
     Ok((0..c)
@@ -90,14 +94,20 @@ pub(super) fn pull_to_surface_mean(
         .collect())
 }
 
-/// The planes [`mean_row`] reads: unpadded raw and gated values, their padded copies, and the
-/// padded mask of finite raw samples.
+/// What [`mean_row`] reads: unpadded raw and gated values, their padded copies, the padded mask
+/// of finite raw samples, the reading, the noise the gate took out (window means), the width, the
+/// window's radius and the pair noise.
 struct Planes<'a> {
     raw: &'a [Vec<f64>],
     gated: &'a [Vec<f64>],
     raw_p: &'a Padded,
     gated_p: &'a Padded,
     sample: &'a Padded,
+    reading: &'a Reading<'a>,
+    taken: &'a [f64],
+    w: usize,
+    radius: usize,
+    pair_noise: f64,
 }
 
 /// A worker's row buffers: per pixel of the row, its own gated value per channel, its weights'
@@ -119,20 +129,10 @@ struct Row {
 /// averages its line, one pixel at a time; the others their whole window, one tap at a time across
 /// the row, so each tap's distances are one vectorised pass while every pixel still adds its taps in
 /// the window's order (dy, then dx): the same bits as a pixel at a time.
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn mean_row(
-    planes: &Planes,
-    reading: &Reading,
-    taken: &[f64],
-    w: usize,
-    y: usize,
-    r: usize,
-    pair_noise: f64,
-    s: &mut Row,
-    row: &mut [f64],
-) {
-    let c = planes.raw.len();
+fn mean_row(planes: &Planes, y: usize, s: &mut Row, row: &mut [f64]) {
+    let (c, w, r, reading) = (planes.raw.len(), planes.w, planes.radius, planes.reading);
+    let (taken, pair_noise) = (planes.taken, planes.pair_noise);
     let ri = r as isize;
     s.own.resize_with(c, Vec::new);
     s.sums.resize_with(c, Vec::new);
@@ -318,8 +318,8 @@ mod tests {
                         continue;
                     }
                     let mut d2 = 0.0;
-                    for k in 0..c {
-                        let d = gated[k][j] - gated[k][i];
+                    for g in gated {
+                        let d = g[j] - g[i];
                         d2 += d * d;
                     }
                     if d2.partial_cmp(&(FAR * scale)) != Some(std::cmp::Ordering::Less) {

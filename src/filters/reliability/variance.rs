@@ -126,7 +126,7 @@ fn noise_band(
 
 /// The variance over every pixel's window of the channels' medians, summed over the channels: the
 /// window mean of the squares (summed over the channels) less each channel's squared window mean,
-/// each window mean as [`box_mean`] adds it, in one column pass over all the row sums.
+/// each window mean as [`box_mean`] adds it, computed in bands of [`BAND`] rows (the same bits).
 pub(super) fn signal_variance(
     medians: &[Vec<f64>],
     (w, h): (usize, usize),
