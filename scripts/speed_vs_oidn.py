@@ -16,9 +16,10 @@ one run, median of 5. This script:
          and reading and writing the EXRs), the counterpart of OIDN's "filter";
      each the median of `--runs` (default 5), in rounds: one OIDN filter execution and one run of every
      gsid pipeline and binary per round, so all see the same drift of a shared machine's load;
-  3. prints a markdown table with every time's ratio to OIDN's filter and to OIDN's process time, under
-     a header with the CPU, core count and the load average at start and end (a shared machine slows
-     every figure).
+  3. prints a markdown table with every time's ratio to OIDN's filter and to OIDN's process time, and
+     for gsid's rows the median of each round's ratio to that round's OIDN filter time (the machine's
+     drift between rounds cancels in it), under a header with the CPU, core count and the load average
+     at start and end (a shared machine slows every figure).
 
 Usage (from the repository root, after `cargo build --release`):
 
@@ -146,6 +147,13 @@ def interleaved(device, setdir, linked, binaries, pipelines, tmp, runs):
     return oidn_times, gsid_times, filter_times
 
 
+def per_round_ratio(times, oidn_times):
+    """The median over rounds of a gsid time over the same round's OIDN filter time: a round's two
+    runs are seconds apart, so the machine's drift between rounds (the ratio of medians moved from
+    1.02× to 1.25× between two runs of the same binaries) cancels in each quotient."""
+    return statistics.median(t / o for t, o in zip(times, oidn_times))
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description="gsid balanced/full against OIDN at 1024×1024, 4 spp (see the docstring).")
     p.add_argument("--runs", type=int, default=5, help="timed runs of each method (median)")
@@ -213,18 +221,23 @@ def main(argv=None):
 
     filt = rows["OIDN filter (execute only)"][0]
     proc = rows["OIDN process (one-shot python3)"][0]
+    oidn_rounds = rows["OIDN filter (execute only)"][1]
+    per_round = {m: per_round_ratio(times, oidn_rounds) for m, (_, times) in rows.items() if m.startswith("gsid")}
     print(f"{header['cpu']}, {header['cores']} cores; load average {header['load_average_start'][0]:.2f} at start, "
           f"{header['load_average_end'][0]:.2f} at end. OIDN {header['oidn']} ({header['oidn_threads']} threads), "
           f"gsid {', '.join(map(str, binaries))} (tree at {header['gsid_commit']}). {SIZE}×{SIZE}, {SPP} spp, {setdir}; "
           f"median of {args.runs}.")
     print()
-    print("| method | median s | runs (s) | ÷ OIDN filter | ÷ OIDN process |")
-    print("| --- | --- | --- | --- | --- |")
+    print("| method | median s | runs (s) | ÷ OIDN filter | ÷ OIDN filter, per round | ÷ OIDN process |")
+    print("| --- | --- | --- | --- | --- | --- |")
     for method, (median, times) in rows.items():
         runs = " ".join(f"{t:.2f}" for t in times)
-        print(f"| {method} | {median:.3f} | {runs} | {median / filt:.2f}× | {median / proc:.2f}× |")
+        rounds = f"{per_round[method]:.2f}×" if method in per_round else "—"
+        print(f"| {method} | {median:.3f} | {runs} | {median / filt:.2f}× | {rounds} | {median / proc:.2f}× |")
     if args.json:
-        out = {"header": header, "rows": {m: {"median": t[0], "times": t[1]} for m, t in rows.items()}}
+        out = {"header": header,
+               "rows": {m: {"median": t[0], "times": t[1], "per_round_ratio": per_round.get(m)}
+                        for m, t in rows.items()}}
         Path(args.json).write_text(json.dumps(out, indent=1) + "\n")
         cd.note(f"wrote {args.json}")
     return 0
