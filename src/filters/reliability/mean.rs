@@ -30,6 +30,7 @@ const FAR: f64 = 40.0;
 
 /// What the surface mean reads besides the buffers: per pixel, the reliability `rho` and the
 /// window's direction `along` (an index into `DIRECTIONS`, or `NO_DIRECTION`).
+#[derive(Clone, Copy)]
 pub(super) struct Reading<'a> {
     pub rho: &'a [f64],
     pub along: &'a [u8],
@@ -110,12 +111,11 @@ struct Planes<'a> {
     pair_noise: f64,
 }
 
-/// A worker's row buffers: per pixel of the row, its own gated value per channel, its weights'
+/// A worker's row buffers: per pixel of the row, its weights'
 /// scale and cut-off, the pixels that average their whole window, and its running sums (`line`: one
 /// pixel's, along its direction).
 #[derive(Default)]
 struct Row {
-    own: Vec<Vec<f64>>,
     scale: Vec<f64>,
     far: Vec<f64>,
     square: Vec<usize>,
@@ -134,9 +134,8 @@ fn mean_row(planes: &Planes, y: usize, s: &mut Row, row: &mut [f64]) {
     let (c, w, r, reading) = (planes.raw.len(), planes.w, planes.radius, planes.reading);
     let (taken, pair_noise) = (planes.taken, planes.pair_noise);
     let ri = r as isize;
-    s.own.resize_with(c, Vec::new);
     s.sums.resize_with(c, Vec::new);
-    for v in s.own.iter_mut().chain(s.sums.iter_mut()) {
+    for v in s.sums.iter_mut() {
         v.clear();
         v.resize(w, 0.0);
     }
@@ -150,7 +149,6 @@ fn mean_row(planes: &Planes, y: usize, s: &mut Row, row: &mut [f64]) {
         let px = &mut row[x * c..(x + 1) * c];
         for (k, v) in px.iter_mut().enumerate() {
             *v = planes.gated[k][i];
-            s.own[k][x] = *v;
         }
         let scale = 2.0 * pair_noise * taken[i];
         let pull = 1.0 - reading.rho[i];
@@ -171,7 +169,7 @@ fn mean_row(planes: &Planes, y: usize, s: &mut Row, row: &mut [f64]) {
                 s.line.resize(c, 0.0);
                 for t in -ri..=ri {
                     let at = planes.gated_p.at(x, y, (t * dx, t * dy));
-                    let d2 = distance(planes, at, |k| s.own[k][x]);
+                    let d2 = distance(planes, at, |k| planes.gated[k][i]);
                     if let Some(weight) = weigh(planes, at, d2, s.far[x], scale) {
                         total += weight;
                         for (sum, raw) in s.line.iter_mut().zip(&planes.raw_p.planes) {
@@ -195,7 +193,8 @@ fn mean_row(planes: &Planes, y: usize, s: &mut Row, row: &mut [f64]) {
             let at0 = planes.gated_p.at(0, y, (dx, dy));
             // Every pixel's distance at this tap, a contiguous run of each padded plane.
             s.d2.fill(0.0);
-            for (plane, own) in planes.gated_p.planes.iter().zip(&s.own) {
+            for (plane, own) in planes.gated_p.planes.iter().zip(planes.gated) {
+                let own = &own[y * w..(y + 1) * w];
                 for ((d2, &p), &o) in s.d2.iter_mut().zip(&plane[at0..at0 + w]).zip(own) {
                     let d = p - o;
                     *d2 += d * d;
@@ -375,18 +374,9 @@ mod tests {
                 rho: &rho,
                 along: &along,
             };
-            let got = pull_to_surface_mean(
-                &raw,
-                &gated,
-                Reading {
-                    rho: &rho,
-                    along: &along,
-                },
-                (w, h),
-                (2, 2.0),
-                &Meter::default(),
-            )
-            .unwrap();
+            let got =
+                pull_to_surface_mean(&raw, &gated, reading, (w, h), (2, 2.0), &Meter::default())
+                    .unwrap();
             let want = per_pixel(&raw, &gated, &reading, (w, h), 2);
             for k in 0..c {
                 for i in 0..n {
