@@ -1,4 +1,4 @@
-//! The `spread` stage's tests: the light given back, its cap, its surfaces, and the highlights.
+//! The `spread` stage's tests: the light given back, its cap, its surfaces, bad input and threads.
 
 use super::*;
 
