@@ -48,16 +48,7 @@ pub(super) fn pull_to_surface_mean(
 ) -> Result<Vec<Vec<f64>>> {
     meter.step()?;
     let c = raw.len();
-    let residual: Vec<f64> = (0..w * h)
-        .into_par_iter()
-        .map(|i| {
-            (0..c)
-                .map(|k| (raw[k][i] - gated[k][i]).powi(2))
-                .filter(|d| d.is_finite())
-                .sum()
-        })
-        .collect();
-    let taken = box_mean(&residual, (w, h), radius);
+    let taken = box_mean(&residual(raw, gated), (w, h), radius);
     let pad = |planes: &[Vec<f64>]| {
         Padded::new((w, h), planes.len(), radius, Margin::Edge, |i, k| {
             planes[k][i]
@@ -247,6 +238,22 @@ fn weigh(planes: &Planes, at: usize, d2: f64, far: f64, scale: f64) -> Option<f6
     (!weight.is_nan() && weight > 0.0).then_some(weight)
 }
 
+/// Per pixel, what the gate took: the squared differences of the raw and gated planes, summed
+/// over the channels that are finite.
+fn residual(raw: &[Vec<f64>], gated: &[Vec<f64>]) -> Vec<f64> {
+    let n = raw.first().map_or(0, Vec::len);
+    (0..n)
+        .into_par_iter()
+        .map(|i| {
+            raw.iter()
+                .zip(gated)
+                .map(|(r, g)| (r[i] - g[i]).powi(2))
+                .filter(|d| d.is_finite())
+                .sum()
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -279,15 +286,7 @@ mod tests {
         r: usize,
     ) -> Vec<Vec<f64>> {
         let c = raw.len();
-        let residual: Vec<f64> = (0..w * h)
-            .map(|i| {
-                (0..c)
-                    .map(|k| (raw[k][i] - gated[k][i]).powi(2))
-                    .filter(|d| d.is_finite())
-                    .sum()
-            })
-            .collect();
-        let taken = box_mean(&residual, (w, h), r);
+        let taken = box_mean(&residual(raw, gated), (w, h), r);
         let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
         let mut out = gated.to_vec();
         for y in 0..h {
