@@ -177,5 +177,23 @@ pub(crate) mod fixtures {
         }
     }
 
+    /// The guides with both buffers, with the albedo only and with the normal only.
+    pub(crate) fn guide_sets<'a>(albedo: &'a Image, normal: &'a Image) -> [Guides<'a>; 3] {
+        [
+            Guides {
+                albedo: Some(albedo),
+                normal: Some(normal),
+            },
+            Guides {
+                albedo: Some(albedo),
+                normal: None,
+            },
+            Guides {
+                albedo: None,
+                normal: Some(normal),
+            },
+        ]
+    }
+
     pub(crate) const RULES: [Rule; 3] = [Rule::Zscore, Rule::Feature, Rule::Percentile];
 }

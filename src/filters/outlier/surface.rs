@@ -93,7 +93,7 @@ fn same_surface_run(planes: &SurfacePlanes, i0: usize, j0: usize, bit: u32, out:
 mod tests {
     use super::*;
     use crate::filters::outlier::neighbourhood::window;
-    use crate::filters::outlier::params::fixtures::params;
+    use crate::filters::outlier::params::fixtures::{guide_sets, params};
     use crate::filters::outlier::params::Rule;
 
     #[test]
@@ -113,20 +113,7 @@ mod tests {
             1 => [0.0, 0.6, 0.8][k],
             _ => [0.0, 0.0, 1.0][k],
         });
-        for guides in [
-            Guides {
-                albedo: Some(&albedo),
-                normal: Some(&normal),
-            },
-            Guides {
-                albedo: Some(&albedo),
-                normal: None,
-            },
-            Guides {
-                albedo: None,
-                normal: Some(&normal),
-            },
-        ] {
+        for guides in guide_sets(&albedo, &normal) {
             for radius in 1..=BITS_RADIUS {
                 let p = DetectParams {
                     radius,
