@@ -320,11 +320,16 @@ impl NamedInputs {
                 })?;
             maps.push((buffer.to_string(), layer.to_string()));
         }
-        // A colour file given first, beside buffers named one by one, is read as `--color FILE`.
-        let features_named = self.slots()[2..].iter().any(|(_, p)| p.is_some());
+        // A multilayer file given first keeps its passes; a buffer named beside it takes the
+        // place of its own (`shot.exr --variance var.exr`). Any other colour file given first,
+        // beside buffers named one by one, is read as `--color FILE`.
+        let named_buffers: Vec<(&'static str, PathBuf)> = self.slots()[2..]
+            .iter()
+            .filter_map(|(b, p)| p.as_ref().map(|p| (*b, p.clone())))
+            .collect();
         let color = match dir {
-            Some(dir) if !features_named => {
-                return io::load_input_from(dir, &maps, self.layer.as_deref())
+            Some(dir) if named_buffers.is_empty() || io::is_layered_file(dir) => {
+                return io::load_input_with(dir, &maps, self.layer.as_deref(), &named_buffers)
             }
             Some(dir) if dir.is_dir() => {
                 return Err(Error::config(

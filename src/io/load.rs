@@ -155,6 +155,24 @@ pub fn load_input_from(
     maps: &[(String, String)],
     view_layer: Option<&str>,
 ) -> Result<LoadedSet> {
+    load_input_with(path, maps, view_layer, &[])
+}
+
+/// Whether `path` is a multilayer or multi-part EXR file, whose passes a buffer named beside it
+/// replaces one by one ([`load_input_with`]); an unreadable file is not (its loader says why).
+pub fn is_layered_file(path: &Path) -> bool {
+    path.is_file() && extension(path) == "exr" && exr_file::is_multilayer(path).unwrap_or(false)
+}
+
+/// [`load_input_from`] for a multilayer file, with buffers named one by one (`shot.exr --variance
+/// var.exr`, `--albedo FILE.exr:Layer`) in place of the file's own or beside them: the file still
+/// gives every buffer not named, so naming one pass does not turn off the others.
+pub fn load_input_with(
+    path: &Path,
+    maps: &[(String, String)],
+    view_layer: Option<&str>,
+    named: &[(&'static str, PathBuf)],
+) -> Result<LoadedSet> {
     if !path.is_file() {
         for (flag, given) in [
             ("--map", !maps.is_empty()),
@@ -208,6 +226,10 @@ pub fn load_input_from(
         set = set.with(feature, p.image)?;
         files.push((p.buffer.to_string(), path.to_path_buf()));
     }
+    let named_halves = named.iter().any(|(b, _)| NoiseInputs::HALVES.contains(b));
+    if named_halves {
+        halves = [None, None];
+    }
     set.noise.halves = both_halves(halves).map_err(|(missing, _)| {
         Error::file(
             path,
@@ -216,6 +238,14 @@ pub fn load_input_from(
             ),
         )
     })?;
+    override_named(
+        &mut set,
+        named,
+        (path, &frame),
+        &mut files,
+        &mut sources,
+        &mut notes,
+    )?;
     let mapping = LoadedSet::mapping_line(&sources);
     notes.insert(0, format!("{}: {mapping}", path.display()));
     notes.extend(noisy_note);
@@ -257,45 +287,27 @@ fn read_buffer(file: &Path, buffer: &'static str, alpha: bool) -> Result<(Image,
     Ok((image, frame, file.display().to_string()))
 }
 
-/// Loads buffers named one by one (`--color`, `--albedo`, …): each a file, or `file.exr:Layer`.
-/// A plain file is read as in a folder, so the two forms give the same bits.
-pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
-    let read = |buffer: &'static str, spec: &Path| -> Result<(Image, Frame, PathBuf, String)> {
-        let colour = buffer == "color";
-        match split_layer(spec) {
-            (file, None) => {
-                let (image, frame, shown) = read_buffer(&file, buffer, colour)?;
-                Ok((image, frame, file, shown))
-            }
-            (file, Some(layer)) => {
-                let layers = passes::Layers::read(&file)?;
-                let picked = layers.layer(&file, &layer, buffer)?;
-                let frame = layers.frame(&file, &picked);
-                let shown = format!("{}:{}", file.display(), picked.source);
-                Ok((picked.image, frame, file, shown))
-            }
+/// Reads one buffer named by itself: a file, or `file.exr:Layer`. Returns the image, what an
+/// output keeps of the file, the file, and its source as shown.
+fn read_spec(buffer: &'static str, spec: &Path) -> Result<(Image, Frame, PathBuf, String)> {
+    let colour = buffer == "color";
+    match split_layer(spec) {
+        (file, None) => {
+            let (image, frame, shown) = read_buffer(&file, buffer, colour)?;
+            Ok((image, frame, file, shown))
         }
-    };
-    let color_spec = named
-        .iter()
-        .find(|(b, _)| *b == "color")
-        .ok_or_else(|| Error::config("--color", "is required with named inputs"))?;
-    let (color, frame, color_path, shown) = read("color", &color_spec.1)?;
-    let (w, h) = color.dims();
-    let mut sources = vec![("color".to_string(), shown)];
-    let mut set = RenderSet::new(color);
-    let mut files = vec![("color".to_string(), color_path.clone())];
-    for feature in Feature::ALL {
-        let Some((_, spec)) = named.iter().find(|(b, _)| *b == feature.name()) else {
-            continue;
-        };
-        let (img, window, file, shown) = read(feature.name(), spec)?;
-        check_size(&img, &file, (w, h), &color_path)?;
-        check_window(&window, &file, &frame, &color_path)?;
-        set = set.with(feature, img)?;
-        sources.push((feature.name().to_string(), shown));
-        files.push((feature.name().to_string(), file));
+        (file, Some(layer)) => {
+            let layers = passes::Layers::read(&file)?;
+            let picked = layers.layer(&file, &layer, buffer)?;
+            let frame = layers.frame(&file, &picked);
+            let shown = format!("{}:{}", file.display(), picked.source);
+            Ok((picked.image, frame, file, shown))
+        }
     }
+}
+
+/// The noise buffers among `named` (variance, the two halves), which come together as in a folder.
+fn named_noise(named: &[(&'static str, PathBuf)]) -> Result<NoiseFiles> {
     let spec_of = |buffer: &str| {
         named
             .iter()
@@ -311,20 +323,68 @@ pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
             ),
         )
     })?;
-    let noise = NoiseFiles {
+    Ok(NoiseFiles {
         variance: spec_of(NoiseInputs::VARIANCE),
         halves,
-    };
-    let mut notes = Vec::new();
+    })
+}
+
+/// Reads the buffers `named` (colour left out) into `set`, each checked against the colour
+/// (`color`: its file and data window) and taking the place of a buffer of its name already there.
+fn override_named(
+    set: &mut RenderSet,
+    named: &[(&'static str, PathBuf)],
+    (color_path, frame): (&Path, &Frame),
+    files: &mut Vec<(String, PathBuf)>,
+    sources: &mut Vec<(String, String)>,
+    notes: &mut Vec<String>,
+) -> Result<()> {
+    let named: Vec<(&'static str, PathBuf)> = named
+        .iter()
+        .filter(|(b, _)| *b != "color")
+        .cloned()
+        .collect();
+    let replaced = |b: &String| named.iter().any(|(n, _)| n == b);
+    files.retain(|(b, _)| !replaced(b));
+    sources.retain(|(b, _)| !replaced(b));
+    let dims = set.dims();
+    for feature in Feature::ALL {
+        let Some((_, spec)) = named.iter().find(|(b, _)| *b == feature.name()) else {
+            continue;
+        };
+        let (img, window, file, shown) = read_spec(feature.name(), spec)?;
+        check_size(&img, &file, dims, color_path)?;
+        check_window(&window, &file, frame, color_path)?;
+        set.features.set(feature, img)?;
+        sources.push((feature.name().to_string(), shown));
+        files.push((feature.name().to_string(), file));
+    }
     let before = files.len();
     let read_noise = |buffer: &'static str, spec: &Path| {
         let layered = split_layer(spec).1.is_some();
-        read(buffer, spec).map(|(img, _, file, shown)| (img, file, layered.then_some(shown)))
+        read_spec(buffer, spec).map(|(img, _, file, shown)| (img, file, layered.then_some(shown)))
     };
-    noise.load(&mut set, read_noise, &color_path, &mut files, &mut notes)?;
+    named_noise(&named)?.load(set, read_noise, color_path, files, notes)?;
     for (buffer, file) in &files[before..] {
         sources.push((buffer.clone(), file.display().to_string()));
     }
+    Ok(())
+}
+
+/// Loads buffers named one by one (`--color`, `--albedo`, …): each a file, or `file.exr:Layer`.
+/// A plain file is read as in a folder, so the two forms give the same bits.
+pub fn load_named(named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
+    let color_spec = named
+        .iter()
+        .find(|(b, _)| *b == "color")
+        .ok_or_else(|| Error::config("--color", "is required with named inputs"))?;
+    let (color, frame, color_path, shown) = read_spec("color", &color_spec.1)?;
+    let mut sources = vec![("color".to_string(), shown)];
+    let mut set = RenderSet::new(color);
+    let mut files = vec![("color".to_string(), color_path.clone())];
+    let mut notes = Vec::new();
+    let at = (color_path.as_path(), &frame);
+    override_named(&mut set, named, at, &mut files, &mut sources, &mut notes)?;
     notes.insert(0, LoadedSet::mapping_line(&sources));
     notes.extend(ldr_note(&color_path));
     let dir = color_path.parent().unwrap_or(Path::new(".")).to_path_buf();

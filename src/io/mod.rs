@@ -28,8 +28,8 @@ pub use exr_file::{Frame, Plane};
 pub use footprint::read_bytes;
 pub use format::{check_output, write_image, Encoding, ImageFormat};
 pub use load::{
-    colour_dims, is_render_set, load_input, load_input_from, load_named, load_render_set,
-    split_layer,
+    colour_dims, is_layered_file, is_render_set, load_input, load_input_from, load_input_with,
+    load_named, load_render_set, split_layer,
 };
 pub use loaded_set::{find_reference, LoadedSet};
 pub use output::{

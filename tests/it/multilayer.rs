@@ -336,3 +336,90 @@ fn a_multilayer_file_named_per_buffer_reads_each_buffers_own_layer() {
     assert_bad_input(&run, "shadow");
     assert!(stderr(&run).contains("layers found"), "{}", stderr(&run));
 }
+
+/// A buffer named beside a multilayer file given first takes the place of the file's own pass
+/// and the file still gives the rest: `shot.exr --variance var.exr` keeps the albedo, normal and
+/// depth (it read the file's colour alone, every feature off), and `--albedo` replaces one pass.
+#[test]
+fn a_buffer_named_beside_a_multilayer_file_keeps_its_other_passes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let t = |name: &str| tmp.path().join(name);
+    let variance = t("variance.exr");
+    let color = channels_of(
+        CYCLES,
+        &[
+            "ViewLayer.Combined.R",
+            "ViewLayer.Combined.G",
+            "ViewLayer.Combined.B",
+        ],
+    );
+    let spread: Vec<f32> = color
+        .data()
+        .iter()
+        .map(|c| 0.01 * c.max(0.0) + 1e-4)
+        .collect();
+    let (w, h) = color.dims();
+    io::write_exr(&variance, &Image::from_vec(w, h, 3, spread).unwrap()).unwrap();
+    let v = variance.to_str().unwrap();
+    let beside = denoise(&[CYCLES, "--variance", v], &t("beside.exr"));
+    let named = denoise(
+        &[
+            "--color",
+            CYCLES,
+            "--albedo",
+            CYCLES,
+            "--normal",
+            CYCLES,
+            "--depth",
+            CYCLES,
+            "--variance",
+            v,
+        ],
+        &t("named.exr"),
+    );
+    assert!(beside == named, "the file's passes were not all read");
+    assert!(
+        beside != denoise(&[CYCLES], &t("plain.exr")),
+        "variance unused"
+    );
+    let line = mapping_line(&[CYCLES, "--variance", v], &t("line.exr"));
+    for part in [
+        "albedo ← ViewLayer.Denoising Albedo",
+        "depth ← ",
+        "variance ← ",
+    ] {
+        assert!(line.contains(part), "{part} missing from: {line}");
+    }
+    // One pass replaced: the flat albedo of another file, not the file's.
+    let flat = t("albedo.exr");
+    io::write_exr(
+        &flat,
+        &Image::from_vec(w, h, 3, vec![0.5; w * h * 3]).unwrap(),
+    )
+    .unwrap();
+    let a = flat.to_str().unwrap();
+    let replaced = denoise(&[CYCLES, "--albedo", a], &t("replaced.exr"));
+    let named = denoise(
+        &[
+            "--color", CYCLES, "--albedo", a, "--normal", CYCLES, "--depth", CYCLES,
+        ],
+        &t("named2.exr"),
+    );
+    assert!(
+        replaced == named,
+        "--albedo did not replace the file's albedo alone"
+    );
+    // A named buffer of another size is still named, exit 2.
+    let small = t("small.exr");
+    io::write_exr(&small, &Image::from_vec(2, 2, 3, vec![0.5; 12]).unwrap()).unwrap();
+    let run = gsid(&[
+        "denoise",
+        CYCLES,
+        "--albedo",
+        small.to_str().unwrap(),
+        "-o",
+        t("x.exr").to_str().unwrap(),
+    ]);
+    assert_bad_input(&run, "small.exr");
+    assert!(!t("x.exr").exists());
+}
