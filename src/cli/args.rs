@@ -320,22 +320,16 @@ impl NamedInputs {
                 })?;
             maps.push((buffer.to_string(), layer.to_string()));
         }
-        // A multilayer file given first keeps its passes; a buffer named beside it takes the
-        // place of its own (`shot.exr --variance var.exr`). Any other colour file given first,
-        // beside buffers named one by one, is read as `--color FILE`.
+        // A multilayer file or a render-set folder given first keeps its buffers; a buffer named
+        // beside it takes the place of its own (`shot.exr --variance var.exr`). Any other colour
+        // file given first, beside buffers named one by one, is read as `--color FILE`.
         let named_buffers: Vec<(&'static str, PathBuf)> = self.slots()[2..]
             .iter()
             .filter_map(|(b, p)| p.as_ref().map(|p| (*b, p.clone())))
             .collect();
         let color = match dir {
-            Some(dir) if named_buffers.is_empty() || io::is_layered_file(dir) => {
+            Some(dir) if named_buffers.is_empty() || dir.is_dir() || io::is_layered_file(dir) => {
                 return io::load_input_with(dir, &maps, self.layer.as_deref(), &named_buffers)
-            }
-            Some(dir) if dir.is_dir() => {
-                return Err(Error::config(
-                    "--albedo",
-                    format!("buffers named one by one (--albedo, --normal, …) need the colour as a file, not the folder {}", dir.display()),
-                ))
             }
             Some(dir) => Some(dir.to_path_buf()),
             None => self.color.clone().or_else(|| self.ldr.clone()),

@@ -218,6 +218,14 @@ impl Batch {
                 "applies to one render set or a frame pattern, not a folder of render sets",
             ));
         }
+        // One file named for a buffer cannot be every set's: each set has its own.
+        let named = args.inputs.slots().into_iter().find(|(_, p)| p.is_some());
+        if let Some((buffer, _)) = named {
+            return Err(Error::config(
+                format!("--{}", buffer.replace('_', "-")),
+                "names one file; a folder of render sets takes each set's buffers from its own folder",
+            ));
+        }
         let names_an_image =
             !args.output.exists() && io::ImageFormat::of_output(&args.output).is_ok();
         if (args.output.exists() && !args.output.is_dir()) || names_an_image {

@@ -69,6 +69,12 @@ pub fn colour_dims(input: &Path) -> Option<(usize, usize)> {
 
 /// Loads a render set folder: `color` is required, feature buffers are optional.
 pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
+    load_render_set_with(dir, &[])
+}
+
+/// [`load_render_set`], with buffers named one by one in place of the folder's files of their
+/// names or beside them (`gsid denoise DIR --variance v.exr`).
+fn load_render_set_with(dir: &Path, named: &[(&'static str, PathBuf)]) -> Result<LoadedSet> {
     if !dir.exists() {
         return Err(Error::file(dir, "not found"));
     }
@@ -127,10 +133,12 @@ pub fn load_render_set(dir: &Path) -> Result<LoadedSet> {
     let read_file = |_: &'static str, p: &Path| Ok((read_image(p, 3)?, p.to_path_buf(), None));
     noise.load(&mut set, read_file, &color_path, &mut files, &mut notes)?;
     let reference = find_reference(dir);
-    let sources = files
+    let mut sources = files
         .iter()
         .map(|(b, p)| (b.clone(), p.display().to_string()))
         .collect();
+    let at = (color_path.as_path(), &frame);
+    override_named(&mut set, named, at, &mut files, &mut sources, &mut notes)?;
     Ok(LoadedSet::new(
         dir.to_path_buf(),
         set,
@@ -164,9 +172,9 @@ pub fn is_layered_file(path: &Path) -> bool {
     path.is_file() && extension(path) == "exr" && exr_file::is_multilayer(path).unwrap_or(false)
 }
 
-/// [`load_input_from`] for a multilayer file, with buffers named one by one (`shot.exr --variance
-/// var.exr`, `--albedo FILE.exr:Layer`) in place of the file's own or beside them: the file still
-/// gives every buffer not named, so naming one pass does not turn off the others.
+/// [`load_input_from`], with buffers named one by one (`shot.exr --variance var.exr`, `DIR --albedo
+/// FILE.exr:Layer`) in place of the file's passes or the folder's files of their names, or beside
+/// them: the input still gives every buffer not named, so naming one does not turn off the others.
 pub fn load_input_with(
     path: &Path,
     maps: &[(String, String)],
@@ -185,7 +193,7 @@ pub fn load_input_with(
                 ));
             }
         }
-        return load_render_set(path);
+        return load_render_set_with(path, named);
     }
     let mut layers = passes::Layers::read(path)?;
     if let Some(name) = view_layer {

@@ -423,3 +423,52 @@ fn a_buffer_named_beside_a_multilayer_file_keeps_its_other_passes() {
     assert_bad_input(&run, "small.exr");
     assert!(!t("x.exr").exists());
 }
+
+/// A buffer named beside a render-set folder takes the place of the folder's file of its name or
+/// joins them, as the file would in the folder (it was refused: "the colour as a file"). Beside a
+/// folder of render sets it is refused: one file cannot be every set's buffer.
+#[test]
+fn a_buffer_named_beside_a_folder_is_read_as_the_folders_own() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = crate::common::copy_fixture(4, &tmp.path().join("given"));
+    let color = io::read_image(&set.join("color.exr"), 3).unwrap();
+    let (w, h) = color.dims();
+    let spread: Vec<f32> = color
+        .data()
+        .iter()
+        .map(|c| 0.02 * c.max(0.0) + 1e-4)
+        .collect();
+    let variance = tmp.path().join("v.exr");
+    io::write_exr(&variance, &Image::from_vec(w, h, 3, spread).unwrap()).unwrap();
+    let flat = tmp.path().join("a.exr");
+    io::write_exr(&flat, &Image::filled(w, h, 3, 0.5)).unwrap();
+    let (v, a) = (variance.to_str().unwrap(), flat.to_str().unwrap());
+    let s = set.to_str().unwrap();
+    let t = |name: &str| tmp.path().join(name);
+    let beside = denoise(&[s, "--variance", v, "--albedo", a], &t("beside.exr"));
+    // The same files inside a copy of the folder.
+    let inside = crate::common::copy_fixture(4, &tmp.path().join("inside"));
+    std::fs::copy(&variance, inside.join("variance.exr")).unwrap();
+    std::fs::copy(&flat, inside.join("albedo.exr")).unwrap();
+    let folder = denoise(&[inside.to_str().unwrap()], &t("folder.exr"));
+    assert!(
+        beside == folder,
+        "named buffers were not read as the folder's"
+    );
+    assert!(
+        beside != denoise(&[s], &t("plain.exr")),
+        "the named buffers were unused"
+    );
+    // A folder of render sets: refused before any set is read, nothing written.
+    let out = t("out");
+    let run = gsid(&[
+        "denoise",
+        tmp.path().join("given").to_str().unwrap(),
+        "--variance",
+        v,
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_bad_input(&run, "--variance");
+    assert!(!out.exists());
+}
