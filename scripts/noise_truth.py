@@ -20,7 +20,15 @@ Printed per spp:
     the skew, but the truth's rare bright paths (which the estimate leaves to the outlier stage on
     purpose) weigh in it.
 
+With `--bound`, what a right estimate would buy: the first frame denoised again with a truth from the
+other frames alone (their variance, ddof 1, independent of the frame's own noise) given as the
+renderer's variance (`gsid denoise FRAME --variance FILE`), with gsid's own estimate given so (the
+control: it passes through the renderer-variance path's smoothing), with that estimate scaled by each of
+`--scales`, and with only its overestimates (above 2× the truth) or only its underestimates (below half)
+replaced by the truth; each scored by `gsid eval` (relMSE, SSIM) against the shot's reference.
+
     python3 scripts/noise_truth.py ../shared/fixtures/cycles-static --spp 4,16,64
+    python3 scripts/noise_truth.py ../shared/fixtures/cycles-static --spp 4,16,64 --bound
     python3 scripts/noise_truth.py SHOT --spp 64 --gsid OTHER_BUILD --set noise.source=image --json out.json
 
 Needs numpy and OpenEXR (scripts/requirements-compare.txt). Errors give one line and exit code 2.
@@ -63,7 +71,7 @@ def glossy_mask(path, np):
     return (gloss + trans) > 0.5 * np.maximum(total, 1e-12)
 
 
-def measure(gsid, shot, spp, pipeline, sets, np):
+def measure(gsid, shot, spp, pipeline, sets, np, bound=None):
     paths = frames(shot, spp)
     stack = np.stack([gs.read_pass(p, "Combined", "RGB") for p in paths])
     truth = stack.astype(np.float64).var(axis=0, ddof=1).mean(axis=2)
@@ -88,10 +96,58 @@ def measure(gsid, shot, spp, pipeline, sets, np):
             sel = m & valid
             row[f"median_{name}"] = float(np.median(estimate[sel] / truth[sel])) if sel.any() else None
             row[f"share_{name}"] = float(sel.mean())
+    if bound is not None:
+        row["bound"] = bound_rows(gsid, paths, stack, pipeline, sets, bound, np)
     h, w = truth.shape
     row["tiles"] = [[float(estimate[y:y + TILE, x:x + TILE].sum() / max(truth[y:y + TILE, x:x + TILE].sum(), 1e-30))
                      for x in range(0, w, TILE)] for y in range(0, h, TILE)]
     return row
+
+
+def reference_of(shot, frame):
+    for ref in (shot / "reference" / frame.name, shot / "reference.exr"):
+        if ref.is_file():
+            return ref
+    gs.fail(f"no reference for {frame} (looked for {shot / 'reference' / frame.name} and {shot / 'reference.exr'})")
+
+
+def bound_rows(gsid, paths, stack, pipeline, sets, scales, np):
+    """The first frame denoised with each variance `--bound` names, scored against the reference."""
+    frame = paths[0]
+    reference = reference_of(frame.parent.parent, frame)
+    truth = stack[1:].astype(np.float64).var(axis=0, ddof=1)
+    rows = {}
+    with tempfile.TemporaryDirectory(prefix="noise_bound.") as tmp:
+        tmp = Path(tmp)
+
+        def scored(name, variance=None, save=False):
+            out = tmp / f"{len(rows)}.exr"
+            cmd = [str(gsid), "denoise", str(frame), "-p", pipeline, "-o", str(out), "--quiet"]
+            for s in sets:
+                cmd += ["--set", s]
+            if variance is not None:
+                path = tmp / f"{len(rows)}-variance.exr"
+                gs.write_rgb(path, variance.astype(np.float32))
+                cmd += ["--variance", str(path)]
+            if save:
+                cmd += ["--save-buffer", f"noise={tmp / 'estimate.exr'}"]
+            run = subprocess.run(cmd, capture_output=True, text=True)
+            if run.returncode != 0:
+                gs.fail(f"{' '.join(cmd)}: {run.stderr.strip()}")
+            score = gs.gsid_eval(gsid, out, reference)
+            rows[name] = {"relmse": score["relmse"], "ssim": score["ssim"]}
+
+        scored("image estimate", save=True)
+        estimate = gs.read_rgb(tmp / "estimate.exr").astype(np.float64)
+        scored("estimate as --variance", estimate)
+        scored("truth as --variance", truth)
+        for k in scales:
+            scored(f"estimate × {k:g}", estimate * k)
+        ratio = estimate.mean(axis=2) / np.maximum(truth.mean(axis=2), 1e-30)
+        over, under = (ratio > 2.0)[..., None], (ratio < 0.5)[..., None]
+        scored("overestimates → truth", np.where(over, truth, estimate))
+        scored("underestimates → truth", np.where(under, truth, estimate))
+    return rows
 
 
 def main():
@@ -102,7 +158,15 @@ def main():
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="passed to gsid denoise")
     p.add_argument("--gsid", type=Path, default=None, help="gsid binary (default: $GSID_BIN or target/release)")
     p.add_argument("--json", type=Path)
+    p.add_argument("--bound", action="store_true",
+                   help="also denoise the first frame with the other frames' variance as the renderer's, "
+                        "and with the estimate scaled or corrected by it (see above)")
+    p.add_argument("--scales", default="0.7,0.5,0.35", help="scales of the estimate for --bound")
     args = p.parse_args()
+    try:
+        scales = [float(k) for k in args.scales.split(",")] if args.bound else None
+    except ValueError:
+        gs.fail(f"--scales {args.scales!r}: not a comma-separated list of numbers")
     try:
         import numpy as np
     except ImportError as e:
@@ -114,7 +178,7 @@ def main():
         gs.fail(f"{args.shot}: not a folder")
     rows = []
     for spp in gs.parse_spps(args.spp):
-        row = measure(gsid, args.shot, spp, args.pipeline, args.set, np)
+        row = measure(gsid, args.shot, spp, args.pipeline, args.set, np, scales)
         rows.append(row)
         q = row["quantiles"]
         parts = [f"spp{spp}: estimate ÷ truth median {row['median']:.2f} "
@@ -124,6 +188,8 @@ def main():
             parts.append(f"diffuse {row['median_diffuse']:.2f}, glossy {'—' if g is None else f'{g:.2f}'} "
                          f"({row['share_glossy'] * 100:.0f} % of pixels)")
         print("; ".join(parts))
+        for name, r in row.get("bound", {}).items():
+            print(f"  denoised with {name}: relMSE {r['relmse']:.5f}, SSIM {r['ssim']:.4f}")
         print(f"  pooled Σ estimate ÷ Σ truth per {TILE}×{TILE} tile:")
         for tiles in row["tiles"]:
             print("  " + " ".join(f"{t:5.2f}" for t in tiles))
