@@ -152,7 +152,8 @@ impl RunOptions {
 #[derive(clap::Args, Debug, Clone)]
 pub struct DenoiseArgs {
     /// Render set folder, one multilayer EXR file, a frame pattern (`shot/beauty.####.exr`, also
-    /// `%04d`, `$F4`), or a folder of render-set folders (omit with --color or --ldr).
+    /// `%04d`, `$F4`), or a folder of render-set folders (omit with --color or --ldr). A buffer
+    /// named beside a folder or a multilayer file (`--variance FILE`) replaces its own.
     #[arg(required_unless_present_any = ["color", "ldr"])]
     pub dir: Option<PathBuf>,
     #[command(flatten)]
