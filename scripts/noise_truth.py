@@ -71,7 +71,7 @@ def glossy_mask(path, np):
     return (gloss + trans) > 0.5 * np.maximum(total, 1e-12)
 
 
-def measure(gsid, shot, spp, pipeline, sets, np, bound=None):
+def measure(gsid, shot, spp, pipeline, sets, np, scales=None):
     paths = frames(shot, spp)
     stack = np.stack([gs.read_pass(p, "Combined", "RGB") for p in paths])
     truth = stack.astype(np.float64).var(axis=0, ddof=1).mean(axis=2)
@@ -96,8 +96,8 @@ def measure(gsid, shot, spp, pipeline, sets, np, bound=None):
             sel = m & valid
             row[f"median_{name}"] = float(np.median(estimate[sel] / truth[sel])) if sel.any() else None
             row[f"share_{name}"] = float(sel.mean())
-    if bound is not None:
-        row["bound"] = bound_rows(gsid, paths, stack, pipeline, sets, bound, np)
+    if scales is not None:
+        row["bound"] = bound_rows(gsid, paths, stack, pipeline, sets, scales, np)
     h, w = truth.shape
     row["tiles"] = [[float(estimate[y:y + TILE, x:x + TILE].sum() / max(truth[y:y + TILE, x:x + TILE].sum(), 1e-30))
                      for x in range(0, w, TILE)] for y in range(0, h, TILE)]

@@ -85,10 +85,13 @@ fn load_render_set_with(dir: &Path, named: &[(&'static str, PathBuf)]) -> Result
     let color_path = find_buffer_file(dir, "color")?
         .ok_or_else(|| Error::file(dir.join("color.exr"), "required buffer `color` not found"))?;
     let mut notes: Vec<String> = ldr_note(&color_path).into_iter().collect();
+    // A buffer named beside the folder is read from its own file alone, never decoded here too.
+    let named_here = |name: &str| named.iter().any(|(b, _)| *b == name);
     // The files are independent: decode them all on all threads (colour, the largest, beside the
     // features), then check them in order, so the first error reported is the same on every run.
     let found: Vec<(Feature, Option<PathBuf>)> = Feature::ALL
         .iter()
+        .filter(|f| !named_here(f.name()))
         .map(|&f| Ok((f, find_buffer_file(dir, f.name())?)))
         .collect::<Result<_>>()?;
     type Decoded = Result<(Image, Frame)>;
@@ -118,8 +121,16 @@ fn load_render_set_with(dir: &Path, named: &[(&'static str, PathBuf)]) -> Result
         set = set.with(feature, img)?;
         files.push((feature.name().to_string(), path));
     }
-    let exr = |name: &str| present(&dir.join(format!("{name}.exr")));
-    let [a, b] = NoiseInputs::HALVES.map(exr);
+    let exr = |name: &str| {
+        if named_here(name) {
+            Ok(None)
+        } else {
+            present(&dir.join(format!("{name}.exr")))
+        }
+    };
+    // Named halves take the place of the folder's pair whole, as the two come together.
+    let named_halves = NoiseInputs::HALVES.iter().any(|h| named_here(h));
+    let [a, b] = NoiseInputs::HALVES.map(|h| if named_halves { Ok(None) } else { exr(h) });
     let halves = both_halves([a?, b?]).map_err(|(missing, have)| {
         Error::file(
             dir.join(format!("{missing}.exr")),
