@@ -50,7 +50,7 @@ def relmse(np, out, ref):
     return float(np.mean((out - ref) ** 2 / (ref * ref + 0.01)))
 
 
-def case_folder(work, fx, spp, source, np):
+def case_folder(work, fx, spp, source):
     """A folder of colour, albedo, normal, depth (and halves where the fixture has them) for one case."""
     d = work / f"{fx}-{spp}"
     (d / "set").mkdir(parents=True)
@@ -192,7 +192,7 @@ def main():
     rows = []
     try:
         for fx, spp, source, ref in cases:
-            d = case_folder(work, fx, spp, Path(source), np)
+            d = case_folder(work, fx, spp, Path(source))
             if Path(source).is_file():  # score against the reference's Combined, as written plain
                 plain = d / "reference.exr"
                 gs.write_rgb(plain, gs.read_pass(ref, *gs.LAYER_PASSES["color"]))
