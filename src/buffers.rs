@@ -59,6 +59,13 @@ impl Buffers {
         Self::default()
     }
 
+    /// Takes `from`'s account of where its variance and colour came from (a coarser level of it
+    /// derives from the same shot's frames).
+    pub(crate) fn inherit_origin(&mut self, from: &Buffers) {
+        self.variance_from_stack = from.variance_from_stack;
+        self.resampled = from.resampled;
+    }
+
     /// Whether the render set's `variance` was measured from a shot's frames (`--temporal`).
     pub fn variance_from_stack(&self) -> bool {
         self.variance_from_stack

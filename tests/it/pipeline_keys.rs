@@ -270,26 +270,26 @@ fn out_of_range_coverage_keys_are_named() {
     );
 }
 
-/// `color_guide` is range-checked, and needs the `noise` its patch distances count in.
+/// `color_guide` and `stack_color_guide` are range-checked, and need the `noise` their patch
+/// distances count in.
 #[test]
 fn out_of_range_color_guide_is_named() {
-    for value in ["-0.5", "nan", "11"] {
-        let mut spec = PipelineSpec::builtin("full").unwrap();
-        spec.apply_set(&format!("pyramid.gsid.color_guide={value}"))
-            .unwrap();
+    for key in ["color_guide", "stack_color_guide"] {
+        for value in ["-0.5", "nan", "11"] {
+            let mut spec = PipelineSpec::builtin("full").unwrap();
+            spec.apply_set(&format!("pyramid.gsid.{key}={value}"))
+                .unwrap();
+            let err = spec.build().err().expect("rejected").to_string();
+            assert!(
+                err.contains(key) && err.contains("0 (off) to 10"),
+                "{key} {value}: {err}"
+            );
+        }
+        let mut spec = PipelineSpec::builtin("gsid").unwrap();
+        spec.apply_set(&format!("gsid.{key}=0.5")).unwrap();
         let err = spec.build().err().expect("rejected").to_string();
-        assert!(
-            err.contains("color_guide") && err.contains("0 (off) to 10"),
-            "{value}: {err}"
-        );
+        assert!(err.contains(key) && err.contains("noise"), "{err}");
     }
-    let mut spec = PipelineSpec::builtin("gsid").unwrap();
-    spec.apply_set("gsid.color_guide=0.5").unwrap();
-    let err = spec.build().err().expect("rejected").to_string();
-    assert!(
-        err.contains("color_guide") && err.contains("noise"),
-        "{err}"
-    );
     let mut spec = PipelineSpec::builtin("full").unwrap();
     spec.apply_set("pyramid.gsid.color_guide=0.5").unwrap();
     assert!(spec.build().is_ok());

@@ -1,6 +1,8 @@
 //! The `gsid` stage: feature-guided random-walk denoising (SID when only the colour weight is set).
 
 pub mod guide;
+#[cfg(test)]
+mod stack_tests;
 pub mod walk;
 
 use serde::{Deserialize, Serialize};
@@ -51,6 +53,10 @@ pub struct GsidParams {
     /// pass whose 3×3 patch distance counts in noise σ of `noise`, so a reflected or refracted
     /// edge the features do not show stays while the noise goes; 0: the colour as it is.
     pub color_guide: f32,
+    /// `color_guide` on a `--temporal` frame, whose variance is measured from the shot's frames and
+    /// does not read a reflection's structure as noise, as an image estimate does: there the guide's
+    /// patch distances count in the right units. Replaces `color_guide` on such a frame.
+    pub stack_color_guide: f32,
 }
 
 impl Default for GsidParams {
@@ -73,6 +79,7 @@ impl Default for GsidParams {
             noise_power: 1.0,
             local_noise: 0.0,
             color_guide: 0.0,
+            stack_color_guide: 0.0,
         }
     }
 }
@@ -124,19 +131,20 @@ impl GsidParams {
                 "above 0, at most 1e6",
             ));
         }
-        if !(0.0..=10.0).contains(&self.color_guide) {
-            return Err(Error::range(
-                "color_guide",
-                self.color_guide,
-                "0 (off) to 10",
-            ));
-        }
-        if self.color_guide > 0.0 && self.noise.is_none() {
-            return Err(Error::range(
-                "color_guide",
-                self.color_guide,
-                "0 without `noise` (the guide counts in the noise it names)",
-            ));
+        for (key, k) in [
+            ("color_guide", self.color_guide),
+            ("stack_color_guide", self.stack_color_guide),
+        ] {
+            if !(0.0..=10.0).contains(&k) {
+                return Err(Error::range(key, k, "0 (off) to 10"));
+            }
+            if k > 0.0 && self.noise.is_none() {
+                return Err(Error::range(
+                    key,
+                    k,
+                    "0 without `noise` (the guide counts in the noise it names)",
+                ));
+            }
         }
         self.scaling().validate()?;
         self.weights.validate()
@@ -208,7 +216,12 @@ pub fn run_gsid(
         .scaling()
         .color_scales(buffers, color, params.exposure)?;
     ctx.meter.check()?;
-    let guide = match params.noise.as_deref().filter(|_| params.color_guide > 0.0) {
+    let k = if buffers.variance_from_stack() {
+        params.stack_color_guide
+    } else {
+        params.color_guide
+    };
+    let guide = match params.noise.as_deref().filter(|_| k > 0.0) {
         Some(name) => {
             let variance = buffers.get_sized(name, 3, color.dims())?.ok_or_else(|| {
                 Error::buffer(
@@ -216,7 +229,7 @@ pub fn run_gsid(
                     "is required (the stage's `noise`) but missing; a `noise` stage writes it",
                 )
             })?;
-            guide::color_guide(color, variance, params.color_guide as f64, &ctx.meter)
+            guide::color_guide(color, variance, k as f64, &ctx.meter)
         }
         None => None,
     };

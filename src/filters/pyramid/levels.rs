@@ -182,6 +182,7 @@ pub fn reduce_buffers(buffers: &Buffers, input: &str, mask: Option<&str>) -> Res
         };
         out.insert(name, reduced)?;
     }
+    out.inherit_origin(buffers);
     Ok(out)
 }
 
@@ -207,6 +208,21 @@ pub(crate) mod tests {
         Image::from_fn(w, h, 3, |x, y, c| {
             ((x * 13 + y * 7 + c * 5) % 17) as f32 / 4.0 + 0.01
         })
+    }
+
+    #[test]
+    fn a_coarser_level_keeps_a_stack_frames_origin() {
+        // A `--temporal` frame's variance was measured from the shot's frames; its coarser levels'
+        // stages (a `gsid` stage's `stack_color_guide`) must know it too.
+        for from_stack in [false, true] {
+            let mut set = crate::render_set::RenderSet::new(ramp(8, 6));
+            set.noise.variance = Some(Image::filled(8, 6, 3, 0.01));
+            set.noise.from_stack = from_stack;
+            set.noise.resampled = from_stack;
+            let coarse = reduce_buffers(&Buffers::from(set), "color", None).unwrap();
+            assert_eq!(coarse.variance_from_stack(), from_stack);
+            assert_eq!(coarse.resampled(), from_stack);
+        }
     }
 
     #[test]
