@@ -179,11 +179,17 @@ fn noise_variants(spec: &PipelineSpec) -> Result<Vec<Variant>> {
     fixed.stages.retain(|s| {
         !is_noise(s) && !matches!(s.kind.as_str(), "blend" | "regress" | "spread" | "coverage")
     });
+    // The colour guides count in the noise, so they go with it.
+    let unlink = |p: &mut toml::Table| {
+        for key in ["noise", "color_guide", "stack_color_guide"] {
+            p.remove(key);
+        }
+    };
     for s in &mut fixed.stages {
-        s.params.remove("noise");
+        unlink(&mut s.params);
         s.children.retain(|c| !is_noise(c));
         for c in &mut s.children {
-            c.params.remove("noise");
+            unlink(&mut c.params);
         }
     }
     let mut from_image = spec.clone();
