@@ -184,9 +184,7 @@ def main():
         from scipy.ndimage import uniform_filter
     except ImportError as e:
         gs.fail(f"missing Python package ({e}); run: pip install -r scripts/requirements-compare.txt")
-    gsid = args.gsid or gs.GSID
-    if not Path(gsid).is_file():
-        gs.fail(f"no gsid binary at {gsid} (cargo build --release, or --gsid PATH)")
+    gsid = gs.gsid_binary(args.gsid)
     cases = gs.cases([f for f in args.fixtures.split(",") if f], gs.parse_spps(args.spp))
     work = Path(tempfile.mkdtemp(prefix="gsid-choice-"))
     rows = []

@@ -170,6 +170,15 @@ def require_gsid(build):
     return GSID
 
 
+def gsid_binary(given=None):
+    """The gsid binary a script's `--gsid` names, else $GSID_BIN or target/release/gsid; a one-line
+    error when it is not a file."""
+    gsid = Path(given) if given else GSID
+    if not gsid.is_file():
+        fail(f"no gsid binary at {gsid} (cargo build --release, or --gsid PATH)")
+    return gsid
+
+
 def gsid_eval(gsid, image, reference):
     proc = subprocess.run([str(gsid), "eval", str(image), "--reference", str(reference), "--json"],
                           capture_output=True, text=True, cwd=ROOT)

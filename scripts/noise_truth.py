@@ -171,9 +171,7 @@ def main():
         import numpy as np
     except ImportError as e:
         gs.fail(f"missing Python package ({e}); run: pip install -r scripts/requirements-compare.txt")
-    gsid = args.gsid or gs.GSID
-    if not Path(gsid).is_file():
-        gs.fail(f"no gsid binary at {gsid} (cargo build --release, or --gsid PATH)")
+    gsid = gs.gsid_binary(args.gsid)
     if not args.shot.is_dir():
         gs.fail(f"{args.shot}: not a folder")
     rows = []
